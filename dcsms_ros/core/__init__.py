@@ -1,0 +1,1 @@
+"""Numeric core: model, sensors, decoupling, controllers, modes, engine. Never imports rclpy."""

@@ -1,0 +1,422 @@
+"""Frozen configuration dataclasses, loaded from ROS 2 parameter YAML files.
+
+A file holds ``<node or /**>: ros__parameters: {...}`` blocks; every block is merged, nested keys
+become dotted names (as ROS 2 does), and each name is checked against :mod:`.schema`. Errors name
+the field and the file. The nodes receive the same dataclasses, so the numeric core never sees
+ROS types.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from dcsms_ros.core.schema import ParamSpec, expand_specs, resolve_alias, stage_name
+from dcsms_ros.errors import ConfigError
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Transducers:
+    """Sensors or actuators on one body: positions (m, world) and unit directions, shape (n, 3)."""
+
+    position: tuple[Vec3, ...] = ()
+    direction: tuple[Vec3, ...] = ()
+
+
+@dataclass(frozen=True)
+class Mounts:
+    """Springs under a stage: positions (m, world), stiffness (N/m) and damping (N*s/m) along
+    x, y, z per mount, each of shape (n, 3)."""
+
+    position: tuple[Vec3, ...] = ()
+    stiffness: tuple[Vec3, ...] = ()
+    damping: tuple[Vec3, ...] = ()
+
+
+@dataclass(frozen=True)
+class StageConfig:
+    """One stage. In 1dof ``stiffness``/``damping`` are given; in 6dof they are the sums of the
+    mounts' z values (so the vertical analytics still apply)."""
+
+    name: str
+    mass: float  # kg
+    stiffness: float  # N/m, vertical, all mounts
+    damping: float  # N*s/m, vertical, all mounts
+    actuator_count: int  # 1dof: lumped actuators; 6dof: len(actuators.position)
+    inertia: Vec3 = (1.0, 1.0, 1.0)  # kg*m^2 about the CoM
+    com: Vec3 = (0.0, 0.0, 0.0)  # m, world; reference point
+    mounts: Mounts = Mounts()
+    sensors: Transducers = Transducers()
+    actuators: Transducers = Transducers()
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    fidelity: str  # "1dof" | "6dof"
+    rate_hz: float  # Hz
+    stages: tuple[StageConfig, ...]
+    ground_sensors: Transducers = Transducers()
+
+    @property
+    def dt(self) -> float:
+        """Sample period in s."""
+        return 1.0 / self.rate_hz
+
+    @property
+    def num_stages(self) -> int:
+        return len(self.stages)
+
+    @property
+    def dof(self) -> int:
+        """Degrees of freedom per body: 1 (z) or 6 (x y z rx ry rz)."""
+        return 1 if self.fidelity == "1dof" else 6
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    natural_frequency_hz: float = 4.5
+    damping_ratio: float = 0.42
+    sensitivity_v_per_mps: float = 100.4
+    noise_asd: float = 1e-9  # m/s/sqrt(Hz)
+    dynamics: bool = True
+    extension_hz: float = 0.5
+    extension_damping: float = 0.707
+
+
+@dataclass(frozen=True)
+class ActuatorConfig:
+    force_limit_n: float = 100.0  # N per actuator
+
+
+@dataclass(frozen=True)
+class FeedbackConfig:
+    """Velocity feedback of one stage: force = -gain * filters(s) * velocity, per axis."""
+
+    gain: tuple[float, ...]  # 6 values: N*s/m (x y z), N*m*s/rad (rx ry rz)
+    highpass_hz: float = 0.3
+    highpass_order: int = 1
+    lowpass_hz: float = 150.0
+    lowpass_order: int = 2
+    notch_hz: float = 0.0
+    notch_q: float = 5.0
+    lead_hz: float = 0.0
+    lag_hz: float = 0.0
+
+
+@dataclass(frozen=True)
+class FeedforwardConfig:
+    """Ground feedforward into the stage-1 actuators: force = -gain * (c1 + k1/s) * HP * LP * v_b."""
+
+    gain: float = 0.9
+    highpass_hz: float = 0.5
+    highpass_order: int = 2
+    lowpass_hz: float = 150.0
+    lowpass_order: int = 2
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    fade_time_s: float = 0.5
+    input_timeout_s: float = 0.01
+    lockstep_timeout_s: float = 0.5
+    trip_rms_mps: float = 1e-3
+    trip_band_hz: tuple[float, float] = (1.0, 200.0)
+    trip_window_s: float = 0.2
+
+
+@dataclass(frozen=True)
+class DisturbanceConfig:
+    seed: int = 1
+    ground_rms_mps: Vec3 = (2e-6, 2e-6, 5e-6)
+    ground_band_hz: tuple[float, float] = (0.5, 100.0)
+    force_rms_n: float = 2.0
+    force_band_hz: tuple[float, float] = (0.5, 100.0)
+
+
+@dataclass(frozen=True)
+class SystemConfig:
+    """Everything one simulation or graph needs. ``feedback[i]`` belongs to ``plant.stages[i]``."""
+
+    plant: PlantConfig
+    sensors: SensorConfig
+    actuators: ActuatorConfig
+    feedback: tuple[FeedbackConfig, ...]
+    feedforward: FeedforwardConfig
+    control: ControlConfig
+    disturbance: DisturbanceConfig
+    source: str = "<defaults>"
+    params: Mapping[str, Any] | None = None  # the flat, validated values (dotted names)
+
+
+# ---------------------------------------------------------------------------------------------
+# Loading
+
+
+def read_params_file(path: str | Path) -> dict[str, Any]:
+    """Read a ROS 2 params YAML file and return its merged, flattened ``{dotted: value}``."""
+    p = Path(path)
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read: {exc}") from None
+    except yaml.YAMLError as exc:
+        where = getattr(exc, "problem_mark", None)
+        line = f" line {where.line + 1}" if where is not None else ""
+        raise ConfigError(f"{p}:{line} invalid YAML: {getattr(exc, 'problem', exc)}") from None
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{p}: expected '<node>: ros__parameters: {{...}}' at the top level")
+    flat: dict[str, Any] = {}
+    for node, block in doc.items():
+        if not isinstance(block, dict) or "ros__parameters" not in block:
+            raise ConfigError(f"{p}: '{node}' has no 'ros__parameters' block")
+        params = block["ros__parameters"]
+        if not isinstance(params, dict):
+            raise ConfigError(f"{p}: '{node}.ros__parameters' must be a mapping")
+        _flatten(params, "", flat)
+    return flat
+
+
+def _flatten(d: Mapping[str, Any], prefix: str, out: dict[str, Any]) -> None:
+    for k, v in d.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict):
+            _flatten(v, name + ".", out)
+        else:
+            out[name] = v
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """Parse one ``--set NAME=VALUE``; VALUE is YAML (``1.5e6``, ``[1, 2, 3]``, ``true``)."""
+    if "=" not in text:
+        raise ConfigError(f"--set {text!r}: expected NAME=VALUE")
+    name, _, raw = text.partition("=")
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError:
+        raise ConfigError(f"--set {name}: cannot parse value {raw!r}") from None
+    return resolve_alias(name.strip()), value
+
+
+def load_config(path: str | Path | None = None,
+                overrides: Mapping[str, Any] | None = None) -> SystemConfig:
+    """Load a params file (or the built-in defaults when ``path`` is None) and apply overrides.
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        ROS 2 params YAML file, e.g. ``config/table1.yaml``.
+    overrides : mapping, optional
+        Dotted names (or aliases such as ``c1``) to values; applied after the file.
+    """
+    flat = read_params_file(path) if path is not None else {}
+    source = str(path) if path is not None else "<defaults>"
+    for name, value in (overrides or {}).items():
+        flat[resolve_alias(name)] = value
+    return config_from_flat(flat, source)
+
+
+def config_from_flat(flat: Mapping[str, Any], source: str = "<params>") -> SystemConfig:
+    """Validate a flat ``{dotted: value}`` mapping and build a :class:`SystemConfig`.
+
+    Raises
+    ------
+    ConfigError
+        Naming the field and ``source`` for an unknown key, a wrong type or length, a value out
+        of range, NaN/Inf, or an inconsistent 6-DOF geometry.
+    """
+    fidelity = flat.get("plant.fidelity", "1dof")
+    n_raw = flat.get("plant.num_stages", 2)
+    if isinstance(n_raw, bool) or not isinstance(n_raw, int) or not 1 <= n_raw <= 8:
+        raise ConfigError(f"{source}: plant.num_stages must be an integer in [1, 8], got {n_raw!r}")
+    specs = expand_specs(n_raw)
+    values: dict[str, Any] = {}
+    for name, raw in flat.items():
+        spec = specs.get(name)
+        if spec is None:
+            raise ConfigError(f"{source}: unknown parameter '{name}'" + _suggest(name, specs))
+        if spec.fidelity and spec.fidelity != fidelity:
+            raise ConfigError(f"{source}: '{name}' applies to fidelity {spec.fidelity}, but "
+                              f"plant.fidelity is {fidelity}")
+        values[name] = _check(spec, raw, source)
+    for name, spec in specs.items():
+        if name not in values and (not spec.fidelity or spec.fidelity == fidelity):
+            values[name] = spec.default if not isinstance(spec.default, list) else list(spec.default)
+    return _build(values, source)
+
+
+def _suggest(name: str, specs: Mapping[str, ParamSpec]) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(name, list(specs), n=1)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def _check(spec: ParamSpec, raw: Any, source: str) -> Any:
+    where = f"{source}: {spec.name}"
+    if spec.kind in ("floats", "ints"):
+        if not isinstance(raw, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list of numbers, got {raw!r}")
+        items = [_scalar(spec, x, where) for x in raw]
+        if spec.length > 0 and len(items) != spec.length:
+            raise ConfigError(f"{where}: expected {spec.length} values, got {len(items)}")
+        if spec.length == -3 and len(items) % 3:
+            raise ConfigError(f"{where}: expected x y z triples, got {len(items)} values")
+        return items
+    return _scalar(spec, raw, where)
+
+
+def _scalar(spec: ParamSpec, raw: Any, where: str) -> Any:
+    kind = spec.kind.rstrip("s") if spec.kind in ("floats", "ints") else spec.kind
+    if kind == "str":
+        if not isinstance(raw, str):
+            raise ConfigError(f"{where}: expected a string, got {raw!r}")
+        if spec.choices and raw not in spec.choices:
+            raise ConfigError(f"{where}: must be one of {', '.join(spec.choices)}, got {raw!r}")
+        return raw
+    if kind == "bool":
+        if not isinstance(raw, bool):
+            raise ConfigError(f"{where}: expected true or false, got {raw!r}")
+        return raw
+    if isinstance(raw, str):
+        raw = _numeric_string(raw)  # PyYAML reads 1.2e6 as a string; rcl reads a double
+    if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+        raise ConfigError(f"{where}: expected a number, got {raw!r}")
+    if kind == "int" and not float(raw).is_integer():
+        raise ConfigError(f"{where}: expected an integer, got {raw!r}")
+    x = float(raw)
+    if not math.isfinite(x):
+        raise ConfigError(f"{where}: must be finite, got {raw!r}")
+    if x < spec.lo or (spec.lo_open and x <= spec.lo) or x > spec.hi:
+        lo = "(" if spec.lo_open else "["
+        raise ConfigError(f"{where}: {raw!r} is out of range {lo}{spec.lo:g}, {spec.hi:g}] "
+                          f"{spec.unit}")
+    return int(x) if kind == "int" else x
+
+
+def _numeric_string(text: str) -> Any:
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def _triples(values: list[float]) -> tuple[tuple[float, float, float], ...]:
+    return tuple((values[i], values[i + 1], values[i + 2]) for i in range(0, len(values), 3))
+
+
+def _unit(v: tuple[float, float, float], where: str) -> tuple[float, float, float]:
+    n = math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+    if n == 0.0:
+        raise ConfigError(f"{where}: a direction is the zero vector")
+    return (v[0] / n, v[1] / n, v[2] / n)
+
+
+def _transducers(values: Mapping[str, Any], prefix: str, source: str) -> Transducers:
+    pos = _triples(values[f"{prefix}.position"])
+    dirs = _triples(values[f"{prefix}.direction"])
+    if len(pos) != len(dirs):
+        raise ConfigError(f"{source}: {prefix}: {len(pos)} positions but {len(dirs)} directions")
+    return Transducers(pos, tuple(_unit(d, f"{source}: {prefix}.direction") for d in dirs))
+
+
+def _build(v: Mapping[str, Any], source: str) -> SystemConfig:
+    fidelity = v["plant.fidelity"]
+    n = v["plant.num_stages"]
+    stages = []
+    for i in range(1, n + 1):
+        s = stage_name(i)
+        if fidelity == "1dof":
+            stages.append(StageConfig(s, v[f"{s}.mass"], v[f"{s}.stiffness"], v[f"{s}.damping"],
+                                      v[f"{s}.actuators.count"]))
+            continue
+        mp = _triples(v[f"{s}.mounts.position"])
+        mk = _triples(v[f"{s}.mounts.stiffness"])
+        mc = _triples(v[f"{s}.mounts.damping"])
+        if not mp:
+            raise ConfigError(f"{source}: {s}.mounts.position: a 6dof stage needs mounts")
+        if not len(mp) == len(mk) == len(mc):
+            raise ConfigError(f"{source}: {s}.mounts: {len(mp)} positions, {len(mk)} stiffness "
+                              f"and {len(mc)} damping triples must agree")
+        acts = _transducers(v, f"{s}.actuators", source)
+        if not acts.position:
+            raise ConfigError(f"{source}: {s}.actuators.position: a 6dof stage needs actuators")
+        stages.append(StageConfig(
+            s, v[f"{s}.mass"], sum(k[2] for k in mk), sum(c[2] for c in mc),
+            len(acts.position), tuple(v[f"{s}.inertia"]), tuple(v[f"{s}.com"]),
+            Mounts(mp, mk, mc), _transducers(v, f"{s}.sensors", source), acts))
+    ground = (_transducers(v, "ground.sensors", source) if fidelity == "6dof" else Transducers())
+    plant = PlantConfig(fidelity, v["plant.rate_hz"], tuple(stages), ground)
+    feedback = tuple(
+        FeedbackConfig(tuple(v[f"feedback.{s.name}.gain"]),
+                       **{k: v[f"feedback.{s.name}.{k}"] for k in
+                          ("highpass_hz", "highpass_order", "lowpass_hz", "lowpass_order",
+                           "notch_hz", "notch_q", "lead_hz", "lag_hz")})
+        for s in stages)
+    cfg = SystemConfig(
+        plant=plant,
+        sensors=SensorConfig(**_section(v, "sensors")),
+        actuators=ActuatorConfig(**_section(v, "actuators")),
+        feedback=feedback,
+        feedforward=FeedforwardConfig(**_section(v, "feedforward")),
+        control=ControlConfig(**_section(v, "control")),
+        disturbance=DisturbanceConfig(**_section(v, "disturbance")),
+        source=source,
+        params=dict(v),
+    )
+    if fidelity == "6dof":
+        from dcsms_ros.core.geometry import check_geometry  # local: geometry imports config
+
+        check_geometry(cfg)
+    return cfg
+
+
+def _section(v: Mapping[str, Any], prefix: str) -> dict[str, Any]:
+    out = {}
+    for name, value in v.items():
+        head, _, rest = name.partition(".")
+        if head == prefix and "." not in rest:
+            out[rest] = tuple(value) if isinstance(value, list) else value
+    return out
+
+
+def with_overrides(cfg: SystemConfig, overrides: Mapping[str, Any]) -> SystemConfig:
+    """A new config with dotted-name (or alias) overrides applied and validated again."""
+    flat = dict(cfg.params or {})
+    for name, value in overrides.items():
+        flat[resolve_alias(name)] = value
+    return config_from_flat(flat, cfg.source)
+
+
+def scaled(cfg: SystemConfig, param: str, factor: float) -> SystemConfig:
+    """A new config with one of m1, m2, c1, c2, k1, k2 (any stage) multiplied by ``factor``.
+
+    In 6dof, ``k``/``c`` scale every mount of that stage on every axis.
+    """
+    name = resolve_alias(param)
+    flat = dict(cfg.params or {})
+    if cfg.plant.fidelity == "6dof" and name.endswith((".stiffness", ".damping")):
+        stage, _, what = name.partition(".")
+        key = f"{stage}.mounts.{what}"
+        flat[key] = [x * factor for x in flat[key]]
+    elif name in flat and isinstance(flat[name], (int, float)):
+        flat[name] = flat[name] * factor
+    else:
+        raise ConfigError(f"{cfg.source}: cannot scale '{param}': not a numeric parameter")
+    return config_from_flat(flat, cfg.source)
+
+
+__all__ = [
+    "ActuatorConfig", "ControlConfig", "DisturbanceConfig", "FeedbackConfig",
+    "FeedforwardConfig", "Mounts", "PlantConfig", "SensorConfig", "StageConfig", "SystemConfig",
+    "Transducers", "config_from_flat", "load_config", "parse_override", "read_params_file",
+    "replace", "scaled", "with_overrides",
+]
