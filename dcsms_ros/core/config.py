@@ -136,7 +136,7 @@ class DisturbanceConfig:
     seed: int = 1
     ground_rms_mps: Vec3 = (2e-6, 2e-6, 5e-6)
     ground_band_hz: tuple[float, float] = (0.5, 100.0)
-    force_rms_n: float = 2.0
+    force_rms_n: float = 0.1
     force_band_hz: tuple[float, float] = (0.5, 100.0)
 
 

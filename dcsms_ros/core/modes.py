@@ -74,3 +74,26 @@ def parse_mode(name: str) -> Mode:
             return mode
     valid = ", ".join(m.label for m in Mode)
     raise ModeError(f"unknown mode {name!r}; valid modes: {valid}")
+
+
+def controller_ids(num_stages: int) -> tuple[str, ...]:
+    """Every controller of an N-stage cascade: ``fb_stage1`` … ``fb_stageN``, then ``ff_stage1``."""
+    return tuple(f"fb_stage{i}" for i in range(1, num_stages + 1)) + (FF_STAGE1,)
+
+
+def enabled_controllers(mode: Mode, num_stages: int) -> frozenset[str]:
+    """Controllers a mode enables in an N-stage cascade.
+
+    The paper's DFBC feeds back every table it has actuators under, so with N stages the dual
+    (D) modes enable ``fb_stage1`` … ``fb_stageN``; single-stage modes use stage 1 only.
+    """
+    ids = set(mode.controllers)
+    if FB_STAGE2 in ids:
+        ids.discard(FB_STAGE2)
+        ids.update(f"fb_stage{i}" for i in range(1, num_stages + 1))
+    return frozenset(ids)
+
+
+def controller_stage(controller: str) -> int:
+    """1-based index of the stage a controller's actuators push (``ff_stage1`` -> 1)."""
+    return int(controller.rsplit("stage", 1)[1])

@@ -87,7 +87,7 @@ GLOBAL_SPECS: tuple[ParamSpec, ...] = (
        "velocity along x, y, z (band-limited white noise)", 0.0, 1.0, length=3),
     _P("disturbance.ground_band_hz", "floats", [0.5, 100.0], "Hz", "Ground noise pass band "
        "[low, high]", 0.0, 1e4, length=2),
-    _P("disturbance.force_rms_n", "float", 2.0, "N", "RMS white-noise force on each table "
+    _P("disturbance.force_rms_n", "float", 0.1, "N", "RMS white-noise force on each table "
        "along each translation axis (pumps, fans, chillers)", 0.0, 1e6),
     _P("disturbance.force_band_hz", "floats", [0.5, 100.0], "Hz", "Table force noise pass "
        "band [low, high]", 0.0, 1e4, length=2),
@@ -142,7 +142,10 @@ STAGE_SPECS: tuple[ParamSpec, ...] = (
 )
 
 #: Per-stage defaults that differ from the table above (the paper's Table 1 second stage).
-STAGE_DEFAULTS: dict[str, float] = {"stage2.mass": 748.8}
+STAGE_DEFAULTS: dict[str, Any] = {
+    "stage2.mass": 748.8,
+    "feedback.stage1.gain": [0.0, 0.0, 1.5e4, 0.0, 0.0, 0.0],
+}
 
 #: Short names accepted by ``--set`` and ``sweep --param``: m1 -> stage1.mass and so on.
 ALIASES = {"m": "mass", "k": "stiffness", "c": "damping"}

@@ -1,0 +1,86 @@
+"""The ``dcsms`` command: one argparse sub-command per module of this package.
+
+Each module ``dcsms_ros/cli/<name>.py`` exposes ``register(subparsers) -> None``, which adds its
+parser and sets ``func`` (``func(args) -> int | None``) with ``set_defaults``. Modules that do not
+exist yet are skipped, so the command grows as the project does.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from collections.abc import Sequence
+
+from dcsms_ros import __version__
+from dcsms_ros.errors import DcsmsError
+
+#: Sub-command modules, in the order ``dcsms --help`` lists them.
+SUBCOMMANDS: tuple[str, ...] = ("model", "sim", "up", "mode", "record", "analyze", "params")
+
+#: Exit status of a usage or configuration error (the argparse convention).
+EXIT_USAGE = 2
+#: Exit status after Ctrl-C (128 + SIGINT), the shell convention.
+EXIT_INTERRUPTED = 130
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with every available sub-command registered."""
+    parser = argparse.ArgumentParser(
+        prog="dcsms",
+        description="Dual-stage cascade spring-mass isolation: model, simulate, run the ROS 2 "
+        "graph, record and analyse.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in SUBCOMMANDS:
+        module_name = f"{__name__}.{name}"
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            # Only a missing sub-command module is skipped; a missing dependency *inside* an
+            # existing module is a real bug and must surface.
+            if exc.name == module_name:
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``dcsms`` with ``argv`` (default: ``sys.argv[1:]``) and return the exit status.
+
+    Returns
+    -------
+    int
+        0 on success, 2 for a usage or configuration error (one line on stderr), 130 after
+        Ctrl-C, or what the sub-command returned.
+    """
+    # Any ROS participant this process starts must stay on this machine unless told otherwise.
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: --help/--version (0) or a usage error (2)
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
+    func = getattr(args, "func", None)
+    if func is None:
+        parser.print_help(sys.stderr)
+        return EXIT_USAGE
+    try:
+        status = func(args)
+    except DcsmsError as exc:
+        print(f"dcsms: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # `dcsms ... | head`: the reader left; silence the interpreter's flush at exit too.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
+    return int(status or 0)
+
+
+__all__ = ["EXIT_INTERRUPTED", "EXIT_USAGE", "SUBCOMMANDS", "build_parser", "main"]

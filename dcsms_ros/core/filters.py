@@ -1,0 +1,252 @@
+"""Continuous controller filters (python-control) and their discrete second-order sections.
+
+Designs are continuous transfer functions so that :mod:`.analytics` analyses exactly what the
+loops run; :func:`to_sos` turns one into Tustin second-order sections and :class:`SosFilter`
+runs them sample by sample, vectorised over channels, without hidden state.
+"""
+
+from __future__ import annotations
+
+import math
+
+import control as ct  # type: ignore[import-untyped]
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import signal
+
+from dcsms_ros.core.config import FeedbackConfig, FeedforwardConfig
+from dcsms_ros.errors import ConfigError
+
+Array = NDArray[np.float64]
+TF = ct.TransferFunction
+
+#: A pass-through second-order section ``[b0 b1 b2 a0 a1 a2]``.
+IDENTITY_SECTION = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 0.0])
+
+
+def _tf(num: ArrayLike, den: ArrayLike) -> TF:
+    return ct.tf(np.atleast_1d(np.asarray(num, float)), np.atleast_1d(np.asarray(den, float)))
+
+
+def unity() -> TF:
+    """The identity transfer function 1."""
+    return _tf([1.0], [1.0])
+
+
+def _butter_ba(order: int, corner_hz: float, btype: str) -> tuple[Array, Array]:
+    b, a = signal.butter(int(order), 2.0 * math.pi * corner_hz, btype=btype, analog=True)
+    return np.asarray(b, float), np.asarray(a, float)
+
+
+def highpass(order: int, corner_hz: float) -> TF:
+    """Butterworth high-pass ``s^n / B_n(s)`` with -3 dB corner ``corner_hz`` (Hz); 0 -> 1."""
+    if corner_hz <= 0.0:
+        return unity()
+    return _tf(*_butter_ba(order, corner_hz, "highpass"))
+
+
+def lowpass(order: int, corner_hz: float) -> TF:
+    """Butterworth low-pass of ``order`` with -3 dB corner ``corner_hz`` (Hz); 0 -> 1."""
+    if corner_hz <= 0.0:
+        return unity()
+    return _tf(*_butter_ba(order, corner_hz, "lowpass"))
+
+
+def notch(center_hz: float, q: float) -> TF:
+    """Notch ``(s^2 + w^2) / (s^2 + (w/Q) s + w^2)``, ``w = 2 pi center_hz``; 0 -> 1."""
+    if center_hz <= 0.0:
+        return unity()
+    w = 2.0 * math.pi * center_hz
+    return _tf([1.0, 0.0, w * w], [1.0, w / q, w * w])
+
+
+def leadlag(zero_hz: float, pole_hz: float) -> TF:
+    """Lead-lag ``(s/wz + 1) / (s/wp + 1)``; ``zero_hz == 0`` disables it (-> 1).
+
+    Raises
+    ------
+    ConfigError
+        If the zero is set but the pole is 0 (the stage would be improper).
+    """
+    if zero_hz <= 0.0:
+        return unity()
+    if pole_hz <= 0.0:
+        raise ConfigError(f"lead-lag: lead_hz={zero_hz:g} needs lag_hz > 0 (got {pole_hz:g})")
+    wz, wp = 2.0 * math.pi * zero_hz, 2.0 * math.pi * pole_hz
+    return _tf([1.0 / wz, 1.0], [1.0 / wp, 1.0])
+
+
+def feedback_tf(fb: FeedbackConfig, axis: int) -> TF:
+    """Velocity-feedback compensator of one axis, ``gain[axis] * HP * LP * notch * leadlag``.
+
+    Parameters
+    ----------
+    fb : FeedbackConfig
+        The stage's feedback settings.
+    axis : int
+        0..5 for x y z rx ry rz (1dof uses 2).
+
+    Returns
+    -------
+    control.TransferFunction
+        Velocity (m/s or rad/s) -> force (N or N*m). The loop applies ``-feedback_tf * v``.
+    """
+    g = float(fb.gain[axis])
+    return (g * highpass(fb.highpass_order, fb.highpass_hz) * lowpass(fb.lowpass_order,
+            fb.lowpass_hz) * notch(fb.notch_hz, fb.notch_q) * leadlag(fb.lead_hz, fb.lag_hz))
+
+
+def feedforward_tf(ff: FeedforwardConfig, c1: float, k1: float) -> TF:
+    """Ground feedforward ``gain * (c1 + k1/s) * HP * LP`` with no pole at s = 0.
+
+    The integrator of ``k1/s`` is cancelled symbolically against one ``s`` of the Butterworth
+    high-pass numerator ``s^n``, so the result is proper and stable.
+
+    Parameters
+    ----------
+    ff : FeedforwardConfig
+        Feedforward settings (``highpass_hz > 0`` is required).
+    c1, k1 : float
+        Stage-1 suspension damping (N*s/m) and stiffness (N/m) along the axis.
+
+    Returns
+    -------
+    control.TransferFunction
+        Ground velocity (m/s) -> force (N). The loop applies ``-feedforward_tf * v_b``.
+    """
+    if ff.highpass_hz <= 0.0:
+        raise ConfigError("feedforward.highpass_hz must be > 0 to cancel the 1/s of k1/s")
+    b, a = _butter_ba(ff.highpass_order, ff.highpass_hz, "highpass")
+    b = np.trim_zeros(b, "f")
+    if b.size < 2 or np.any(b[1:]):
+        raise ConfigError("feedforward.highpass_order must be >= 1")
+    # b = b0 * s^n: dropping one trailing zero divides by s, cancelling the 1/s of k1/s exactly
+    num = ff.gain * np.polymul([c1, k1], b[:-1])
+    return _tf(num, a) * lowpass(ff.lowpass_order, ff.lowpass_hz)
+
+
+def _num_den(tf: TF) -> tuple[Array, Array]:
+    if tf.ninputs != 1 or tf.noutputs != 1:
+        raise ValueError("to_sos: only SISO transfer functions are supported")
+    num = np.trim_zeros(np.asarray(tf.num[0][0], float), "f")
+    den = np.trim_zeros(np.asarray(tf.den[0][0], float), "f")
+    return (num if num.size else np.zeros(1)), den
+
+
+def to_sos(tf: TF, fs: float) -> Array:
+    """Tustin (bilinear, no prewarping) discretisation into second-order sections.
+
+    Parameters
+    ----------
+    tf : control.TransferFunction
+        Continuous SISO, proper (``deg num <= deg den``).
+    fs : float
+        Sample rate in Hz.
+
+    Returns
+    -------
+    ndarray, shape (n, 6)
+        Rows ``[b0 b1 b2 1 a1 a2]`` (scipy ``sosfilt`` layout); a static gain gives one section.
+
+    Raises
+    ------
+    ValueError
+        For an improper or MIMO transfer function.
+    """
+    num, den = _num_den(tf)
+    if not np.any(num):
+        return np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
+    if num.size > den.size:
+        raise ValueError(f"to_sos: improper transfer function (numerator degree {num.size - 1} "
+                         f"> denominator degree {den.size - 1})")
+    if den.size == 1:
+        sec = IDENTITY_SECTION.copy()
+        sec[0] = num[0] / den[0]
+        return sec[None, :]
+    z, p, k = signal.tf2zpk(num, den)
+    zd, pd, kd = signal.bilinear_zpk(z, p, k, fs)
+    sos = signal.zpk2sos(zd, pd, kd)
+    return np.asarray(np.real(sos), dtype=np.float64)
+
+
+class SosFilter:
+    """Cascade of second-order sections, transposed direct form II, vectorised over channels.
+
+    Parameters
+    ----------
+    sos : array_like, shape (n, 6) or (channels, n, 6)
+        Sections shared by every channel, or one set per channel (same section count).
+    channels : int
+        Number of independent channels filtered in parallel.
+    """
+
+    def __init__(self, sos: ArrayLike, channels: int) -> None:
+        s = np.asarray(sos, dtype=np.float64)
+        if s.ndim == 2:
+            s = np.broadcast_to(s, (channels, *s.shape))
+        if s.ndim != 3 or s.shape[0] != channels or s.shape[2] != 6:
+            raise ValueError(f"SosFilter: sos must be (n, 6) or ({channels}, n, 6), "
+                             f"got {np.shape(sos)}")
+        s = s / s[:, :, 3:4]  # normalise a0 so step() matches sosfilt
+        # coefficient arrays (n_sections, channels): rows index sections for a cheap loop
+        self._b0, self._b1, self._b2 = (np.ascontiguousarray(s[:, :, j].T) for j in range(3))
+        self._a1, self._a2 = (np.ascontiguousarray(s[:, :, j].T) for j in (4, 5))
+        self.channels = int(channels)
+        self.sections = int(s.shape[1])
+        self._z = np.zeros((self.sections, 2, self.channels))
+        self._y = np.zeros(self.channels)
+
+    def reset(self) -> None:
+        """Zero every delay state."""
+        self._z.fill(0.0)
+
+    def get_state(self) -> Array:
+        """A copy of the delay states, shape (n_sections, 2, channels)."""
+        return self._z.copy()
+
+    def set_state(self, state: ArrayLike) -> None:
+        """Copy delay states in (shape as returned by :meth:`get_state`)."""
+        np.copyto(self._z, np.asarray(state, dtype=np.float64))
+
+    def step(self, x: ArrayLike) -> Array:
+        """Filter one sample per channel.
+
+        Parameters
+        ----------
+        x : array_like, shape (channels,)
+
+        Returns
+        -------
+        ndarray, shape (channels,)
+            A new array (callers may keep it).
+        """
+        u = np.asarray(x, dtype=np.float64)
+        z = self._z
+        for i in range(self.sections):
+            z0, z1 = z[i, 0], z[i, 1]
+            y = self._b0[i] * u + z0
+            # same operation order as scipy's _sosfilt so results agree to the last bit
+            z0[...] = self._b1[i] * u - self._a1[i] * y + z1
+            z1[...] = self._b2[i] * u - self._a2[i] * y
+            u = y
+        return np.array(u, dtype=np.float64, copy=True)
+
+    def run(self, x: ArrayLike) -> Array:
+        """Filter a block, shape (K, channels) -> (K, channels), continuing the state."""
+        xs = np.asarray(x, dtype=np.float64)
+        out = np.empty_like(xs)
+        for k in range(xs.shape[0]):
+            out[k] = self.step(xs[k])
+        return out
+
+
+def dc_gain(tf: TF) -> float:
+    """Gain at s = 0 (inf when there is an integrator)."""
+    num, den = _num_den(tf)
+    return float(num[-1] / den[-1]) if den[-1] != 0.0 else math.inf
+
+
+__all__ = [
+    "IDENTITY_SECTION", "SosFilter", "dc_gain", "feedback_tf", "feedforward_tf", "highpass",
+    "leadlag", "lowpass", "notch", "to_sos", "unity",
+]

@@ -1,0 +1,135 @@
+"""The physical side of the loop: plant, geophones, disturbances and the actuators.
+
+The ROS plant-simulator node and the batch engine both drive one :class:`PlantSimulator`, so a
+lockstep graph and a batch run compute the same floating-point operations in the same order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.controllers import Allocator
+from dcsms_ros.core.disturbance import Disturbances
+from dcsms_ros.core.model import DiscretePlant, discretize, plant_state_space
+from dcsms_ros.core.modes import controller_stage
+from dcsms_ros.core.sensors import GeophoneArray, channel_layout, channel_matrix
+
+Array = NDArray[np.float64]
+
+#: Stream id of the geophone self-noise, kept apart from the disturbance streams of the seed.
+_SENSOR_STREAM = 7
+
+
+class PlantSimulator:
+    """Sample-by-sample simulation of the cascade with its sensors and actuators.
+
+    Per sample k: :meth:`measure` (geophone readings of state x_k, idempotent within a sample),
+    then :meth:`advance` with every controller's wrench, which allocates and saturates the actuator
+    forces, holds them (ZOH) with the ground velocity and table forces of sample k, and steps to
+    k+1.
+
+    Parameters
+    ----------
+    cfg : SystemConfig
+        The system.
+    seed : int, optional
+        Seed of every random stream (ground, table forces, sensor noise); default
+        ``cfg.disturbance.seed``.
+    ground : ndarray, shape (K, dof), optional
+        Recorded ground velocity (m/s) at the control rate, replayed instead of white noise.
+    """
+
+    def __init__(self, cfg: SystemConfig, seed: int | None = None,
+                 ground: Array | None = None) -> None:
+        self.cfg = cfg
+        seed = cfg.disturbance.seed if seed is None else seed
+        self.plant = DiscretePlant(discretize(plant_state_space(cfg), cfg.plant.dt))
+        self.disturbances = Disturbances(cfg, seed=seed, ground=ground)
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_SENSOR_STREAM,)))
+        self.geophones = GeophoneArray(cfg, rng)
+        self.channels = channel_layout(cfg)
+        self._chan = channel_matrix(cfg)
+        self.allocators = [Allocator(cfg, i) for i in range(1, cfg.plant.num_stages + 1)]
+        self.actuator_names = [f"{s.name}/a{j}" for s, a in
+                               zip(cfg.plant.stages, self.allocators, strict=True)
+                               for j in range(a.n_act)]
+        self.dof = cfg.plant.dof
+        self.k = 0
+        self.nonfinite_inputs = 0
+        self.saturations = 0
+        self._n_act = sum(a.n_act for a in self.allocators)
+        n_in = self.dof + self._n_act + cfg.plant.num_stages * self.dof
+        self._u = np.zeros(n_in)
+        self._truth = np.zeros((cfg.plant.num_stages + 1, self.dof))
+        self._raw: Array | None = None
+        self._draw()
+
+    @property
+    def t(self) -> float:
+        """Time of the current sample k, in s."""
+        return self.k * self.cfg.plant.dt
+
+    @property
+    def num_actuators(self) -> int:
+        return self._n_act
+
+    def _draw(self) -> None:
+        self._ground, self._dist = self.disturbances.next()
+        self._raw = None
+
+    def truth(self) -> Array:
+        """True twists of ground and stages at sample k, shape (N+1, dof), m/s and rad/s."""
+        self._truth[0] = self._ground
+        self._truth[1:] = self.plant.output().reshape(-1, self.dof)
+        return self._truth
+
+    def measure(self) -> Array:
+        """Geophone readings at sample k, shape (n_channels,), m/s. Repeated calls within one
+        sample return the same readings (a retransmitted lockstep step must not re-step the
+        geophone filters)."""
+        if self._raw is None:
+            true_ch = self._chan @ self.truth().ravel()
+            self._raw = self.geophones.step(true_ch)
+        return self._raw
+
+    def advance(self, wrenches: Mapping[str, Array]) -> Array:
+        """Apply the controllers' wrenches for sample k and step to k+1.
+
+        Parameters
+        ----------
+        wrenches : mapping of controller id to ndarray, shape (dof,)
+            Wanted wrench (N, N*m) of each controller at its stage's reference point; missing
+            controllers contribute nothing. A non-finite wrench is never applied: it counts as
+            zero and increments :attr:`nonfinite_inputs`.
+
+        Returns
+        -------
+        ndarray, shape (n_actuators,)
+            Force actually applied by each actuator, N (after saturation).
+        """
+        if self._raw is None:
+            self.measure()  # the geophones sample every step even if nobody asked
+        totals = np.zeros((self.cfg.plant.num_stages, self.dof))
+        for cid, w in wrenches.items():
+            if not np.all(np.isfinite(w)):
+                self.nonfinite_inputs += 1
+                continue
+            totals[controller_stage(cid) - 1] += w
+        u = self._u
+        u[: self.dof] = self._ground
+        pos = self.dof
+        for i, alloc in enumerate(self.allocators):
+            forces, n_sat = alloc.clip(alloc.forces(totals[i]))
+            self.saturations += n_sat
+            u[pos: pos + alloc.n_act] = forces
+            pos += alloc.n_act
+        applied = u[self.dof: pos].copy()
+        u[pos:] = self._dist.ravel()
+        self.plant.step(u)
+        self.k += 1
+        self._draw()
+        return applied
