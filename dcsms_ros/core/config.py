@@ -112,7 +112,8 @@ class FeedbackConfig:
 
 @dataclass(frozen=True)
 class FeedforwardConfig:
-    """Ground feedforward into the stage-1 actuators: force = -gain * (c1 + k1/s) * HP * LP * v_b."""
+    """Ground feedforward into the stage-1 actuators:
+    force = -gain * (c1 + k1/s) * HP * LP * v_b."""
 
     gain: float = 0.9
     highpass_hz: float = 0.5
@@ -249,7 +250,8 @@ def config_from_flat(flat: Mapping[str, Any], source: str = "<params>") -> Syste
         values[name] = _check(spec, raw, source)
     for name, spec in specs.items():
         if name not in values and (not spec.fidelity or spec.fidelity == fidelity):
-            values[name] = spec.default if not isinstance(spec.default, list) else list(spec.default)
+            default = spec.default
+            values[name] = list(default) if isinstance(default, list) else default
     return _build(values, source)
 
 

@@ -32,8 +32,9 @@ class Decoupler:
         layout = channel_layout(cfg)
         self.channel_names: list[str] = [c.name for c in layout]
         self.dof = cfg.plant.dof
-        self._blocks = [(sl, np.linalg.pinv(s)) for _, sl, s in body_sensor_matrices(cfg)]
-        self.body_names = [b for b, _, _ in body_sensor_matrices(cfg)]
+        bodies = body_sensor_matrices(cfg)
+        self._blocks = [(sl, np.linalg.pinv(s)) for _, sl, s in bodies]
+        self.body_names = [b for b, _, _ in bodies]
         n = len(layout)
         self._ext = SosFilter(to_sos(extension_tf(cfg.sensors), cfg.plant.rate_hz), n)
         self._out = np.zeros((len(self._blocks), self.dof))

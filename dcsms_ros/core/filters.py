@@ -8,6 +8,7 @@ runs them sample by sample, vectorised over channels, without hidden state.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import control as ct  # type: ignore[import-untyped]
 import numpy as np
@@ -18,7 +19,7 @@ from dcsms_ros.core.config import FeedbackConfig, FeedforwardConfig
 from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
-TF = ct.TransferFunction
+TF = Any  # control.TransferFunction (python-control ships no type stubs)
 
 #: A pass-through second-order section ``[b0 b1 b2 a0 a1 a2]``.
 IDENTITY_SECTION = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 0.0])
@@ -128,13 +129,13 @@ def feedforward_tf(ff: FeedforwardConfig, c1: float, k1: float) -> TF:
 def _num_den(tf: TF) -> tuple[Array, Array]:
     if tf.ninputs != 1 or tf.noutputs != 1:
         raise ValueError("to_sos: only SISO transfer functions are supported")
-    num = np.trim_zeros(np.asarray(tf.num[0][0], float), "f")
-    den = np.trim_zeros(np.asarray(tf.den[0][0], float), "f")
+    num = np.trim_zeros(np.asarray(tf.num[0][0], dtype=np.float64), "f")
+    den = np.trim_zeros(np.asarray(tf.den[0][0], dtype=np.float64), "f")
     return (num if num.size else np.zeros(1)), den
 
 
-def to_sos(tf: TF, fs: float) -> Array:
-    """Tustin (bilinear, no prewarping) discretisation into second-order sections.
+def to_sos(tf: TF, fs: float, prewarp_hz: float = 0.0) -> Array:
+    """Tustin (bilinear) discretisation into second-order sections.
 
     Parameters
     ----------
@@ -142,6 +143,9 @@ def to_sos(tf: TF, fs: float) -> Array:
         Continuous SISO, proper (``deg num <= deg den``).
     fs : float
         Sample rate in Hz.
+    prewarp_hz : float
+        Frequency (Hz, below fs/2) where the discrete response equals the continuous one
+        exactly; 0 for plain Tustin. A notch needs it: warping moves a sharp notch by ~1 %.
 
     Returns
     -------
@@ -164,9 +168,20 @@ def to_sos(tf: TF, fs: float) -> Array:
         sec[0] = num[0] / den[0]
         return sec[None, :]
     z, p, k = signal.tf2zpk(num, den)
-    zd, pd, kd = signal.bilinear_zpk(z, p, k, fs)
+    fs_eff = fs
+    if prewarp_hz > 0.0:
+        if prewarp_hz >= fs / 2.0:
+            raise ValueError(f"to_sos: prewarp_hz={prewarp_hz:g} must be below fs/2")
+        w0 = 2.0 * math.pi * prewarp_hz
+        fs_eff = w0 / (2.0 * math.tan(w0 / (2.0 * fs)))
+    zd, pd, kd = signal.bilinear_zpk(z, p, k, fs_eff)
     sos = signal.zpk2sos(zd, pd, kd)
     return np.asarray(np.real(sos), dtype=np.float64)
+
+
+def feedback_sos(fb: FeedbackConfig, axis: int, fs: float) -> Array:
+    """The SOS a feedback loop runs: :func:`feedback_tf` prewarped at the notch (if any)."""
+    return to_sos(feedback_tf(fb, axis), fs, fb.notch_hz if 0.0 < fb.notch_hz < fs / 2 else 0.0)
 
 
 class SosFilter:
@@ -200,9 +215,13 @@ class SosFilter:
         """Zero every delay state."""
         self._z.fill(0.0)
 
-    def get_state(self) -> Array:
-        """A copy of the delay states, shape (n_sections, 2, channels)."""
-        return self._z.copy()
+    def get_state(self, out: Array | None = None) -> Array:
+        """A copy of the delay states, shape (n_sections, 2, channels), written into ``out``
+        when given (no allocation)."""
+        if out is None:
+            return self._z.copy()
+        np.copyto(out, self._z)
+        return out
 
     def set_state(self, state: ArrayLike) -> None:
         """Copy delay states in (shape as returned by :meth:`get_state`)."""
@@ -247,6 +266,6 @@ def dc_gain(tf: TF) -> float:
 
 
 __all__ = [
-    "IDENTITY_SECTION", "SosFilter", "dc_gain", "feedback_tf", "feedforward_tf", "highpass",
-    "leadlag", "lowpass", "notch", "to_sos", "unity",
+    "IDENTITY_SECTION", "TF", "SosFilter", "dc_gain", "feedback_sos", "feedback_tf",
+    "feedforward_tf", "highpass", "leadlag", "lowpass", "notch", "to_sos", "unity",
 ]

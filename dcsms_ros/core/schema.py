@@ -172,8 +172,8 @@ def expand_specs(num_stages: int) -> dict[str, ParamSpec]:
 
 
 def _renamed(p: ParamSpec, name: str, default: Any = None) -> ParamSpec:
-    return ParamSpec(name, p.kind, p.default if default is None else default, p.unit, p.doc, p.lo, p.hi, p.length, p.fidelity,
-                     p.choices, p.lo_open)
+    return ParamSpec(name, p.kind, p.default if default is None else default, p.unit, p.doc,
+                     p.lo, p.hi, p.length, p.fidelity, p.choices, p.lo_open)
 
 
 def resolve_alias(name: str) -> str:

@@ -159,6 +159,12 @@ class GeophoneArray:
 
 
 __all__ = [
-    "Channel", "GeophoneArray", "NOISE_BLOCK", "body_sensor_matrices", "channel_layout",
-    "channel_matrix", "extension_tf", "geophone_tf",
+    "NOISE_BLOCK",
+    "Channel",
+    "GeophoneArray",
+    "body_sensor_matrices",
+    "channel_layout",
+    "channel_matrix",
+    "extension_tf",
+    "geophone_tf",
 ]

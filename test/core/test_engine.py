@@ -21,8 +21,8 @@ def cfg():
     return load_config(CONFIG)
 
 
-def _h1(x, y, fs):
-    nper = int(fs * 8)
+def _h1(x, y, fs, seg_s=8.0):
+    nper = int(fs * seg_s)
     f, pxy = signal.csd(x, y, fs=fs, nperseg=nper)
     _, pxx = signal.welch(x, fs=fs, nperseg=nper)
     _, coh = signal.coherence(x, y, fs=fs, nperseg=nper)
@@ -75,12 +75,13 @@ def test_active_transmissibility_matches_analytic(cfg, mode):
     """The closed loop's ground->stage-2 H1 matches the analytic active model within 1.5 dB."""
     quiet = with_overrides(cfg, {"disturbance.force_rms_n": 0.0, "sensors.noise_asd": 0.0,
                                  "sensors.dynamics": False})
-    res = simulate(quiet, mode, duration_s=60.0, seed=5)
+    res = simulate(quiet, mode, duration_s=24.0, seed=5)
     fs = cfg.plant.rate_hz
-    f, h, coh = _h1(res.truth[:, 0, 0], res.truth[:, 2, 0], fs)
+    # Active damping widens the peaks, so 2 s segments resolve them.
+    f, h, coh = _h1(res.truth[:, 0, 0], res.truth[:, 2, 0], fs, seg_s=2.0)
     ref = freq_response(transmissibility(quiet, mode)[1], f)
     band = (f >= 1.0) & (f <= 30.0) & (coh > 0.9)
-    assert band.sum() > 100
+    assert band.sum() > 40
     err_db = 20 * np.log10(np.abs(h[band]) / np.abs(ref[band]))
     assert np.max(np.abs(err_db)) < 1.5
 

@@ -1,0 +1,89 @@
+# dcsms_ros developer entry points. `make demo` and `make test` are all a newcomer needs; the
+# first call builds .venv (Python >= 3.10, pinned requirements.txt, editable install of this
+# package) and later calls reuse it.
+
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+.DEFAULT_GOAL := help
+
+PYTHON ?= python3
+# pip >= 25.3 always installs `-e .` as a PEP 660 editable wheel: console scripts land in
+# .venv/bin and setup.cfg's [develop] script_dir (meant for colcon) is never used.
+PIP_VERSION := 26.3
+VENV := .venv
+PY := $(VENV)/bin/python
+DCSMS := $(VENV)/bin/dcsms
+# Rebuilt when requirements.txt, setup.py or setup.cfg change; flock: parallel `make` calls
+# share one venv.
+STAMP := $(VENV)/.dcsms-stamp
+DEMO_OUT ?= out/demo
+PYTEST_ARGS ?=
+
+# Every process the project starts stays on this host; the tests choose their own domain ids.
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export ROS_DOMAIN_ID ?= 42
+# No .pyc files or caches written into the shared source tree by the checks below.
+export PYTHONDONTWRITEBYTECODE := 1
+export MPLBACKEND := Agg
+
+.PHONY: help venv test lint typecheck pytest demo bench colcon-check clean distclean
+
+help:
+	@echo "make demo          analytic model report (eig, DFBC+FFC transmissibility, c1 sweep)"
+	@echo "make test          ruff + mypy + pytest (creates .venv on first use)"
+	@echo "make bench         performance benchmark (bench/run.py)"
+	@echo "make colcon-check  real colcon build into a temp dir; checks the ros2 run layout"
+	@echo "make clean         remove build outputs; make distclean also removes .venv"
+
+venv $(VENV): $(STAMP)
+
+$(STAMP): requirements.txt setup.py setup.cfg
+	@mkdir -p $(VENV) && flock $(VENV)/.lock $(MAKE) --no-print-directory _venv-locked
+
+# Runs under the lock; re-checks so that a second waiter does not install again.
+.PHONY: _venv-locked
+_venv-locked:
+	@if [ -f $(STAMP) ] && [ -z "$$(find requirements.txt setup.py setup.cfg -newer $(STAMP))" ]; \
+	then exit 0; fi; \
+	if [ ! -x $(PY) ]; then \
+	  $(PYTHON) -c 'import sys; assert sys.version_info >= (3, 10), sys.version' \
+	    || { echo "need Python >= 3.10 (set PYTHON=...)" >&2; exit 1; }; \
+	  echo "creating $(VENV) with $$($(PYTHON) --version)"; \
+	  $(PYTHON) -m venv $(VENV); \
+	fi; \
+	$(PY) -m pip install --quiet --upgrade pip==$(PIP_VERSION); \
+	$(PY) -m pip install --quiet -r requirements.txt; \
+	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .; \
+	touch $(STAMP)
+
+test: lint typecheck pytest
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+
+typecheck: $(STAMP)
+	$(VENV)/bin/mypy dcsms_ros/core dcsms_ros/analysis
+
+# pytest exits 5 when it collects nothing; that fails the target like any other error.
+pytest: $(STAMP)
+	$(PY) -m pytest --durations=10 $(PYTEST_ARGS) || { rc=$$?; \
+	  [ $$rc -eq 5 ] && echo "pytest collected no tests" >&2; exit $$rc; }
+
+demo: $(STAMP)
+	$(DCSMS) model eig
+	$(DCSMS) model tf --mode DFBC+FFC --plot $(DEMO_OUT)
+	$(DCSMS) model sweep --param c1 --factors 1:101:2 --plot $(DEMO_OUT)
+
+bench: $(STAMP)
+	@if [ -f bench/run.py ]; then $(PY) bench/run.py; \
+	else echo "bench/run.py does not exist yet"; fi
+
+colcon-check: $(STAMP)
+	$(PY) -m pytest -p no:cacheprovider test/test_packaging.py -v
+
+clean:
+	rm -rf build install log out .pytest_cache .ruff_cache .mypy_cache *.egg-info
+	find . -path ./$(VENV) -prune -o -name __pycache__ -type d -prune -exec rm -rf {} +
+
+distclean: clean
+	rm -rf $(VENV)

@@ -1,0 +1,183 @@
+"""Write rosbag2 bags (MCAP or SQLite 3) with rosbags, never leaving a bag without metadata.
+
+``ros2 bag info`` needs ``metadata.yaml``, which rosbags writes only on a clean close. A crash
+half-way would leave a directory that looks like a bag but cannot be opened, so the bag is
+built in a staging directory ``<out>.partial/`` and moved to ``<out>`` (one atomic rename)
+only after the writer closed cleanly. On an exception the storage is aborted and the staging
+directory removed; ``<out>`` never appears half-written.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Literal
+
+from rosbags.interfaces import Qos
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.errors import ReaderError, WriterError
+from rosbags.rosbag2.metadata import parse_qos
+from rosbags.typesys.base import TypesysError
+
+from dcsms_ros.analysis.cdr import typestore
+from dcsms_ros.errors import BagError
+
+#: rosbag2 metadata version. Jazzy (rosbag2 0.26) writes and reads version 9 (QoS profiles as a
+#: YAML list with string enums); it still reads 8.
+BAG_VERSION: Literal[9] = 9
+STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+
+#: QoS of a latched topic such as /dcsms/mode (transient local, depth 1, reliable), in the
+#: rosbag2 v9 metadata form; the recorder and ``ros2 bag play`` offer it again on replay.
+LATCHED_QOS = ("- history: keep_last\n  depth: 1\n  reliability: reliable\n"
+               "  durability: transient_local\n  deadline: {sec: 0, nsec: 0}\n"
+               "  lifespan: {sec: 0, nsec: 0}\n  liveliness: automatic\n"
+               "  liveliness_lease_duration: {sec: 0, nsec: 0}\n"
+               "  avoid_ros_namespace_conventions: false\n")
+
+
+class BagWriter:
+    """An open rosbag2 writer; use :func:`open_bag` to create one.
+
+    Attributes
+    ----------
+    path : Path
+        The final bag directory (exists only after a clean close).
+    staging : Path
+        ``<path>.partial``: where the bag is written until it is closed.
+    counts : dict of str to int
+        Messages written per topic.
+    """
+
+    def __init__(self, path: str | Path, storage: str = "mcap") -> None:
+        self.path = Path(path)
+        if storage not in STORAGES:
+            raise BagError(f"{self.path}: unknown storage {storage!r} "
+                           f"(choose {', '.join(STORAGES)})")
+        if self.path.exists():
+            raise BagError(f"{self.path}: exists already, not overwriting")
+        self.staging = self.path.with_name(self.path.name + ".partial")
+        if self.staging.exists():
+            raise BagError(f"{self.staging}: a previous unfinished bag is in the way; remove it")
+        self.storage = storage
+        self.counts: dict[str, int] = {}
+        self._conns: dict[str, Any] = {}
+        self._closed = False
+        # rosbags names the storage file after its directory, so the bag directory inside the
+        # staging area already carries the final name: the rename then needs no rewrite.
+        self._inner = self.staging / self.path.name
+        try:
+            self.staging.mkdir(parents=True)
+            self._writer = Writer(self._inner, version=BAG_VERSION,
+                                  storage_plugin=STORAGES[storage])
+            self._writer.open()
+        except (OSError, WriterError) as exc:
+            raise BagError(f"{self.path}: cannot create bag: {exc}") from None
+
+    def add_topic(self, topic: str, msgtype: str, qos_yaml: str | None = None) -> None:
+        """Register a topic before writing to it.
+
+        Parameters
+        ----------
+        topic : str
+            Topic name, e.g. ``/dcsms/velocity/stage2``.
+        msgtype : str
+            ``pkg/msg/Name`` (``pkg/Name`` is accepted too), known to the Jazzy typestore.
+        qos_yaml : str, optional
+            Offered QoS profiles as rosbag2 metadata YAML (a list), e.g. :data:`LATCHED_QOS`.
+        """
+        if topic in self._conns:
+            raise BagError(f"{self.path}: topic {topic} added twice")
+        if "/msg/" not in msgtype and msgtype.count("/") == 1:
+            msgtype = msgtype.replace("/", "/msg/")
+        qos: list[Qos] = parse_qos(qos_yaml) if qos_yaml else []
+        try:
+            self._conns[topic] = self._writer.add_connection(
+                topic, msgtype, typestore=typestore(), offered_qos_profiles=qos)
+        except (KeyError, WriterError, ReaderError, TypesysError) as exc:
+            raise BagError(f"{self.path}: cannot add {topic} ({msgtype}): {exc}") from None
+        self.counts[topic] = 0
+
+    def write(self, topic: str, t_ns: int, cdr: bytes | memoryview) -> None:
+        """Write one serialised message (CDR with encapsulation header) at log time ``t_ns``."""
+        conn = self._conns.get(topic)
+        if conn is None:
+            raise BagError(f"{self.path}: topic {topic} was not added")
+        self._writer.write(conn, int(t_ns), cdr)
+        self.counts[topic] += 1
+
+    def write_many(self, topic: str, t_ns: Any, buffers: list[bytes]) -> None:
+        """Write K messages of one topic; ``t_ns`` is an int array (K,) of log times in ns."""
+        conn = self._conns.get(topic)
+        if conn is None:
+            raise BagError(f"{self.path}: topic {topic} was not added")
+        write = self._writer.write
+        for t, b in zip(t_ns.tolist() if hasattr(t_ns, "tolist") else t_ns, buffers):
+            write(conn, t, b)
+        self.counts[topic] += len(buffers)
+
+    def close(self) -> Path:
+        """Finish the bag (index, metadata.yaml) and move it to :attr:`path`; returns it."""
+        if self._closed:
+            return self.path
+        self._closed = True
+        try:
+            self._writer.close()
+        except Exception as exc:  # noqa: BLE001 - any storage failure: the bag is unusable
+            self._abort_storage()
+            shutil.rmtree(self.staging, ignore_errors=True)
+            raise BagError(f"{self.path}: cannot finish bag: {exc}") from None
+        if self.path.exists():
+            raise BagError(f"{self.path}: appeared while writing; bag left in {self._inner}")
+        try:
+            self._inner.rename(self.path)
+            self.staging.rmdir()
+        except OSError as exc:
+            raise BagError(f"{self.path}: cannot move the finished bag from {self._inner}: "
+                           f"{exc}") from None
+        return self.path
+
+    def abort(self) -> None:
+        """Give up: close what can be closed and remove the staging directory."""
+        if self._closed:
+            return
+        self._closed = True
+        self._abort_storage()
+        shutil.rmtree(self.staging, ignore_errors=True)
+
+    def _abort_storage(self) -> None:
+        try:
+            self._writer.abort()
+        except Exception:  # noqa: BLE001, S110 - best effort while already failing
+            pass
+
+
+@contextmanager
+def open_bag(path: str | Path, storage: str = "mcap") -> Iterator[BagWriter]:
+    """Open a new bag for writing; closes it cleanly on exit, aborts it on an exception.
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag directory to create; it must not exist.
+    storage : {"mcap", "sqlite3"}
+        rosbag2 storage plugin.
+
+    Raises
+    ------
+    BagError
+        If ``path`` (or ``<path>.partial``) exists or the bag cannot be written; the message
+        names the file.
+    """
+    writer = BagWriter(path, storage)
+    try:
+        yield writer
+    except BaseException:
+        writer.abort()  # also on Ctrl-C: no half-written bag may appear at ``path``
+        raise
+    writer.close()
+
+
+__all__ = ["BAG_VERSION", "LATCHED_QOS", "STORAGES", "BagWriter", "open_bag"]

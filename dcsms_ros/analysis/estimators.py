@@ -1,0 +1,217 @@
+"""Spectral estimators: Welch H1 transfer function, coherence, ASD, peaks, third-octave RMS.
+
+All spectra are one-sided Welch estimates with a Hann window and 50 % overlap. ``nperseg`` is
+a power of two giving a 0.1-0.25 Hz resolution (8192 or 16384 points at 2 kHz), reduced for
+short records so that at least ~8 averages remain: with fewer, the coherence is biased towards
+1 and the H1 variance is large.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+#: Target resolution range (Hz) for :func:`choose_nperseg`.
+RESOLUTION_HZ = (0.1, 0.25)
+MIN_AVERAGES = 8
+
+
+@dataclass
+class TransferEstimate:
+    """H1 estimate of y/x.
+
+    Attributes
+    ----------
+    f : ndarray, shape (F,)
+        Frequencies (Hz).
+    h : ndarray of complex, shape (F,)
+        H1 = S_xy / S_xx (unit of y per unit of x).
+    coherence : ndarray, shape (F,)
+        Magnitude-squared coherence in [0, 1].
+    averages : int
+        Number of Welch segments averaged.
+    """
+
+    f: np.ndarray
+    h: np.ndarray
+    coherence: np.ndarray
+    averages: int
+
+    @property
+    def magnitude_db(self) -> np.ndarray:
+        """20 log10 |H| (dB), shape (F,)."""
+        return 20.0 * np.log10(np.maximum(np.abs(self.h), 1e-300))
+
+
+@dataclass
+class Peak:
+    """A resonance peak: frequency (Hz), value at the peak and its prominence (dB)."""
+
+    f_hz: float
+    value: float
+    prominence_db: float
+
+
+def choose_nperseg(fs: float, n: int) -> int:
+    """Welch segment length for sample rate ``fs`` (Hz) and record length ``n`` (samples).
+
+    The largest power of two with resolution ``fs/nperseg`` >= 0.1 Hz, reduced (by halving) until
+    the record holds :data:`MIN_AVERAGES` half-overlapping segments; at least 64.
+    """
+    nper = 1 << int(np.floor(np.log2(fs / RESOLUTION_HZ[0])))
+    while nper > 64 and (n - nper) // (nper // 2) + 1 < MIN_AVERAGES:
+        nper //= 2
+    return int(min(nper, max(n, 1)))
+
+
+def _averages(n: int, nperseg: int) -> int:
+    return max((n - nperseg) // (nperseg // 2) + 1, 0)
+
+
+def transfer_h1(x: np.ndarray, y: np.ndarray, fs: float,
+                nperseg: int | None = None) -> TransferEstimate:
+    """Welch H1 estimate of the transfer function from ``x`` to ``y`` and their coherence.
+
+    Parameters
+    ----------
+    x, y : ndarray, shape (N,)
+        Input and output records on the same uniform time base.
+    fs : float
+        Sample rate (Hz).
+    nperseg : int, optional
+        Segment length; default :func:`choose_nperseg`.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    nper = nperseg or choose_nperseg(fs, x.size)
+    kw = {"fs": fs, "window": "hann", "nperseg": nper, "noverlap": nper // 2,
+          "detrend": "constant"}
+    f, sxx = signal.welch(x, **kw)  # type: ignore[arg-type]
+    _, syy = signal.welch(y, **kw)  # type: ignore[arg-type]
+    _, sxy = signal.csd(x, y, **kw)  # type: ignore[arg-type]  # conj(X) * Y
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = np.where(sxx > 0, sxy / sxx, 0.0)
+        coh = np.where(sxx * syy > 0, np.abs(sxy) ** 2 / (sxx * syy), 0.0)
+    return TransferEstimate(f, h, np.clip(coh.real, 0.0, 1.0), _averages(x.size, nper))
+
+
+def psd(x: np.ndarray, fs: float, nperseg: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One-sided PSD (unit^2/Hz) of ``x`` (N,): returns ``(f (F,), psd (F,))``."""
+    x = np.asarray(x, dtype=np.float64)
+    nper = nperseg or choose_nperseg(fs, x.size)
+    f, p = signal.welch(x, fs=fs, window="hann", nperseg=nper, noverlap=nper // 2,
+                        detrend="constant")
+    return f, p
+
+
+def asd(x: np.ndarray, fs: float, nperseg: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One-sided ASD (unit/sqrt(Hz), e.g. m/s/sqrt(Hz) for a velocity) of ``x`` (N,)."""
+    f, p = psd(x, fs, nperseg)
+    return f, np.sqrt(p)
+
+
+def find_resonances(f: np.ndarray, magnitude: np.ndarray, prominence_db: float = 3.0,
+                    f_range: tuple[float, float] = (0.5, 100.0),
+                    max_peaks: int = 5) -> list[Peak]:
+    """Resonance peaks of a magnitude spectrum (|H| or ASD), strongest first.
+
+    Peaks are found on the dB curve (20 log10) with :func:`scipy.signal.find_peaks` and a
+    prominence threshold, so a broad resonance and a tall narrow one are judged alike and
+    noise ripples of a fraction of a dB are ignored.
+
+    Parameters
+    ----------
+    f : ndarray, shape (F,)
+        Frequencies (Hz).
+    magnitude : ndarray, shape (F,)
+        Linear magnitude.
+    prominence_db : float
+        Minimum prominence (dB).
+    f_range : (float, float)
+        Only peaks inside this band (Hz).
+    max_peaks : int
+        At most this many, by decreasing prominence.
+    """
+    sel = (f >= f_range[0]) & (f <= f_range[1])
+    if sel.sum() < 3:
+        return []
+    db = 20.0 * np.log10(np.maximum(np.asarray(magnitude)[sel], 1e-300))
+    idx, props = signal.find_peaks(db, prominence=prominence_db)
+    order = np.argsort(props["prominences"])[::-1][:max_peaks]
+    fs = f[sel]
+    mag = np.asarray(magnitude)[sel]
+    return [Peak(float(fs[idx[i]]), float(mag[idx[i]]), float(props["prominences"][i]))
+            for i in order]
+
+
+# ---------------------------------------------------------------------------------------------
+# One-third-octave bands (IEC 61260-1, base 10)
+
+#: Nominal centre frequencies (Hz) of the base-10 one-third-octave bands 1 Hz ... 80 Hz.
+NOMINAL_CENTRES = (1.0, 1.25, 1.6, 2.0, 2.5, 3.15, 4.0, 5.0, 6.3, 8.0, 10.0, 12.5, 16.0, 20.0,
+                   25.0, 31.5, 40.0, 50.0, 63.0, 80.0)
+
+
+def third_octave_bands(f_lo: float = 1.0, f_hi: float = 80.0) -> np.ndarray:
+    """Exact base-10 one-third-octave bands with nominal centres in [f_lo, f_hi].
+
+    IEC 61260-1: exact mid-band ``fm = 1000 * 10**(x/10)`` Hz for integer x, edges
+    ``fm * 10**(-1/20)`` and ``fm * 10**(+1/20)`` (G = 10**0.3, band = G**(1/3)).
+
+    Returns
+    -------
+    ndarray, shape (B, 3)
+        Columns: exact centre, lower edge, upper edge (Hz).
+    """
+    x = np.arange(-40, 14)  # 0.1 Hz ... 20 kHz
+    fm = 1000.0 * 10.0 ** (x / 10.0)
+    keep = (fm >= f_lo * 10 ** (-1 / 20)) & (fm <= f_hi * 10 ** (1 / 20))
+    fm = fm[keep]
+    return np.column_stack([fm, fm * 10 ** (-1 / 20), fm * 10 ** (1 / 20)])
+
+
+def band_rms(f: np.ndarray, p: np.ndarray, bands: np.ndarray) -> np.ndarray:
+    """RMS in each band from a one-sided PSD: ``sqrt(integral of p over the band)``.
+
+    Each PSD bin i stands for ``[f_i - df/2, f_i + df/2]``; a bin straddling a band edge is
+    split in proportion to its overlap, so adjacent bands partition the power exactly.
+
+    Parameters
+    ----------
+    f : ndarray, shape (F,)
+        Uniformly spaced frequencies (Hz).
+    p : ndarray, shape (F,)
+        PSD (unit^2/Hz).
+    bands : ndarray, shape (B, 3)
+        From :func:`third_octave_bands` (centre, lower, upper).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        Band RMS (unit).
+    """
+    df = float(f[1] - f[0])
+    lo = f - df / 2
+    hi = f + df / 2
+    out = np.empty(len(bands))
+    for j, (_, b_lo, b_hi) in enumerate(bands):
+        overlap = np.clip(np.minimum(hi, b_hi) - np.maximum(lo, b_lo), 0.0, None)
+        out[j] = np.sqrt(np.sum(p * overlap))
+    return out
+
+
+def band_rms_around(f: np.ndarray, p: np.ndarray, centre_hz: float,
+                    half_width_oct: float = 1 / 6) -> float:
+    """RMS of a PSD within ``centre * 2**(+-half_width_oct)`` (unit)."""
+    band = np.array([[centre_hz, centre_hz * 2 ** -half_width_oct,
+                      centre_hz * 2 ** half_width_oct]])
+    return float(band_rms(f, p, band)[0])
+
+
+__all__ = [
+    "MIN_AVERAGES", "NOMINAL_CENTRES", "Peak", "TransferEstimate", "asd", "band_rms",
+    "band_rms_around", "choose_nperseg", "find_resonances", "psd", "third_octave_bands",
+    "transfer_h1",
+]

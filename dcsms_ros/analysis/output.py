@@ -1,0 +1,139 @@
+"""Write an analysis to disk: ``report.md``, PNG figures and ``summary.json``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from dcsms_ros.analysis import plots
+from dcsms_ros.errors import DcsmsError
+
+if TYPE_CHECKING:
+    from dcsms_ros.analysis.report import Summary
+
+
+def write_all(out: Path, summary: Summary, results: list[dict[str, Any]]) -> None:
+    """Write every output file into ``out`` (created) and list them in ``summary.files``."""
+    from dcsms_ros.analysis.report import dumps
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DcsmsError(f"{out}: cannot create output directory: {exc.strerror}") from None
+    files = []
+    for a in summary.axes:
+        files += _figures(out, a, results)
+    summary.files = [str(p) for p in [out / "report.md", *files, out / "summary.json"]]
+    (out / "report.md").write_text(markdown(summary, [Path(f).name for f in files]))
+    (out / "summary.json").write_text(dumps(summary) + "\n")
+
+
+def _figures(out: Path, axis: str, results: list[dict[str, Any]]) -> list[Path]:
+    tf_curves, asd_curves, oct_curves = [], [], []
+    centres = None
+    for r in results:
+        js, arr = r["json"], r["arrays"][axis]
+        label = js["mode"]
+        asd_curves.append({"label": label, "f": arr["f"], "asd": np.sqrt(arr["psd"])})
+        ax = js["axes"][axis]
+        centres = np.asarray(ax["third_octave_centres_hz"])
+        oct_curves.append({"label": label, "rms": ax["third_octave_rms_mps"][r["top"]]})
+        if arr["tfs"]:
+            t = arr["tfs"][-1]
+            an = arr["analytic"]
+            tf_curves.append({"label": label, "f": t.f, "h": t.h, "coherence": t.coherence,
+                              "f_an": t.f if an else None,
+                              "h_an": an["h"][-1] if an else None,
+                              "flagged": an["flagged"] if an else []})
+    files = []
+    if tf_curves:
+        files.append(plots.plot_transmissibility(out / f"transmissibility_{axis}.png", axis,
+                                                 tf_curves))
+    if asd_curves:
+        files.append(plots.plot_asd(out / f"asd_{axis}.png", axis, asd_curves))
+    if oct_curves and centres is not None:
+        files.append(plots.plot_third_octave(out / f"third_octave_{axis}.png", axis, centres,
+                                             oct_curves))
+    return files
+
+
+def markdown(summary: Summary, figures: list[str]) -> str:
+    """The human-readable report."""
+    lines = ["# DCSMS vibration analysis", "",
+             f"Bags: {', '.join(f'`{b}`' for b in summary.bags)}  ",
+             f"Configuration: `{summary.config_source or 'none recorded'}`  ",
+             f"Reference mode: **{summary.reference}**; resonance "
+             + ", ".join(f"{a}: {f:.2f} Hz" for a, f in summary.resonance_hz.items()), "",
+             "## Mode table (paper Table 4)", "",
+             "Top-stage velocity at the reference resonance, normalised to the reference mode.",
+             "", _md_table4(summary), "",
+             "Definition: " + " ".join(summary.definition.split()), "",
+             "## Vibration criteria (one-third-octave RMS velocity, 1-80 Hz)", "",
+             _md_vc(summary), "", "## Analytic model vs estimate", "",
+             ("Bands where |estimate| and |analytic| differ by more than 3 dB with coherence "
+             "> 0.9 (top stage)."), "", _md_analytic(summary), "",
+             "## Actuator forces", "", _md_forces(summary), ""]
+    if figures:
+        lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
+    if summary.warnings:
+        lines += ["## Warnings", ""] + [f"- {w}" for w in summary.warnings] + [""]
+    return "\n".join(lines)
+
+
+def _fmt(x: Any, spec: str) -> str:
+    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, spec)
+
+
+def _md_table4(s: Summary) -> str:
+    head = "| mode | " + " | ".join(f"{a.upper()} normalized | {a.upper()} dB" for a in s.axes)
+    rows = [head + " |", "|---|" + "---:|---:|" * len(s.axes)]
+    for seg in s.segments:
+        cells = []
+        for a in s.axes:
+            ax = seg["axes"][a]
+            cells += [_fmt(ax.get("normalized"), ".3f"), _fmt(ax.get("attenuation_db"), "+.1f")]
+        rows.append(f"| {seg['mode']} | " + " | ".join(cells) + " |")
+    return "\n".join(rows)
+
+
+def _md_vc(s: Summary) -> str:
+    rows = ["| mode | axis | table | best criterion met | margin (dB) | worst band (Hz) |",
+            "|---|---|---|---|---:|---:|"]
+    for seg in s.segments:
+        for a in s.axes:
+            for table, v in seg["axes"][a]["vc"].items():
+                rows.append(f"| {seg['mode']} | {a} | {table} | {v['best'] or 'none'} | "
+                            f"{_fmt(v['margin_db'], '+.1f')} | "
+                            f"{_fmt(v['worst_band_hz'], '.3g')} |")
+    return "\n".join(rows)
+
+
+def _md_analytic(s: Summary) -> str:
+    rows = ["| mode | axis | compared bins | max error (dB) | bands > 3 dB (Hz) |",
+            "|---|---|---:|---:|---|"]
+    for seg in s.segments:
+        for a in s.axes:
+            an = seg["axes"][a].get("analytic")
+            if an is None:
+                rows.append(f"| {seg['mode']} | {a} | - | - | no analytic model |")
+                continue
+            bands = ", ".join(f"{lo:.2f}-{hi:.2f}" for lo, hi in an["disagree_bands_hz"])
+            rows.append(f"| {seg['mode']} | {a} | {an['compared_bins']} | "
+                        f"{_fmt(an['max_abs_error_db'], '.1f')} | {bands or 'none'} |")
+    return "\n".join(rows)
+
+
+def _md_forces(s: Summary) -> str:
+    rows = ["| mode | channel | RMS (N) | peak (N) | limit (N) | saturated samples |",
+            "|---|---|---:|---:|---:|---:|"]
+    for seg in s.segments:
+        for c in seg.get("forces", []):
+            rows.append(f"| {seg['mode']} | {c['channel']} | {_fmt(c['rms_n'], '.3g')} | "
+                        f"{_fmt(c['peak_n'], '.3g')} | {_fmt(c['limit_n'], '.4g')} | "
+                        f"{c['saturated_samples']} |")
+    return "\n".join(rows) if len(rows) > 2 else "No `/dcsms/actuators/applied` data."
+
+
+__all__ = ["markdown", "write_all"]

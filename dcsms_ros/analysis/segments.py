@@ -1,0 +1,128 @@
+"""Split a bag's data into constant-mode segments and align the bodies sample by sample."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dcsms_ros.analysis.reader import BagData, ModeEvent
+from dcsms_ros.core.modes import Mode, parse_mode
+from dcsms_ros.errors import ModeError
+
+#: Default time dropped after each switch (s): longer than the default 0.5 s gain fade so the
+#: segment holds only the steady mode, not the transition.
+SETTLE_S = 1.0
+#: Segments shorter than this (s, after settling) are reported but not analysed.
+MIN_SEGMENT_S = 4.0
+
+
+@dataclass
+class Segment:
+    """A time window of one mode, on the header-stamp axis.
+
+    Attributes
+    ----------
+    label : str
+        Mode label as recorded (``DFBC+FFC``) or ``unknown``.
+    mode : Mode or None
+        Parsed label (None if it is not one of the six modes).
+    t0_ns, t1_ns : int
+        Window [t0, t1) in ns, after dropping the settle time.
+    switch_ns : int
+        When the mode was entered (ns).
+    """
+
+    label: str
+    mode: Mode | None
+    t0_ns: int
+    t1_ns: int
+    switch_ns: int
+
+    @property
+    def duration_s(self) -> float:
+        return (self.t1_ns - self.t0_ns) * 1e-9
+
+
+@dataclass
+class Aligned:
+    """Samples common to every body within a segment.
+
+    Attributes
+    ----------
+    stamp_ns : ndarray of int64, shape (K,)
+    bodies : dict of str to ndarray of float64, shape (K, 3)
+        Velocity x, y, z (m/s) of each body.
+    fs : float
+        Sample rate (Hz) from the median stamp step.
+    missing : int
+        Samples missing from the uniform grid (drops, gaps) between first and last stamp.
+    """
+
+    stamp_ns: np.ndarray
+    bodies: dict[str, np.ndarray]
+    fs: float
+    missing: int
+
+
+def _parse(label: str) -> Mode | None:
+    try:
+        return parse_mode(label)
+    except ModeError:
+        return None
+
+
+def split_segments(modes: list[ModeEvent], t_first_ns: int, t_last_ns: int,
+                   settle_s: float = SETTLE_S) -> list[Segment]:
+    """Constant-mode windows between the switches, each shortened by ``settle_s`` at its start.
+
+    Parameters
+    ----------
+    modes : list of ModeEvent
+        Switches in time order (header-stamp times).
+    t_first_ns, t_last_ns : int
+        First and last sample stamp of the data (ns).
+    settle_s : float
+        Time dropped after each switch (s); the very first segment is not shortened unless it
+        starts with a switch inside the data.
+
+    Returns
+    -------
+    list of Segment
+        In time order; a bag without ``/dcsms/mode`` gives one ``unknown`` segment.
+    """
+    settle = int(round(settle_s * 1e9))
+    if not modes:
+        return [Segment("unknown", None, t_first_ns, t_last_ns + 1, t_first_ns)]
+    out = []
+    for i, ev in enumerate(modes):
+        start = ev.stamp_ns
+        # The first label is often the latched mode recorded before any data: nothing switched
+        # at the start of the data, so there is no transient to drop.
+        t0 = start if (i == 0 and start <= t_first_ns) else start + settle
+        t1 = modes[i + 1].stamp_ns if i + 1 < len(modes) else t_last_ns + 1
+        if t1 > t0:
+            out.append(Segment(ev.label, _parse(ev.label), t0, t1, start))
+    return out
+
+
+def align(data: BagData, seg: Segment) -> Aligned:
+    """Samples of every body in ``seg`` that share one stamp (drops in one topic are removed
+    from all, so cross-spectra compare the same instants)."""
+    common: np.ndarray | None = None
+    for s in data.bodies.values():
+        st = s.stamp_ns[(s.stamp_ns >= seg.t0_ns) & (s.stamp_ns < seg.t1_ns)]
+        common = st if common is None else np.intersect1d(common, st, assume_unique=True)
+    assert common is not None
+    bodies = {}
+    for name, s in data.bodies.items():
+        idx = np.searchsorted(s.stamp_ns, common)
+        bodies[name] = s.values[idx].astype(np.float64)
+    if common.size < 2:
+        return Aligned(common, bodies, 0.0, 0)
+    dt = float(np.median(np.diff(common)))
+    expected = int(round((common[-1] - common[0]) / dt)) + 1
+    return Aligned(common, bodies, 1e9 / dt, max(expected - common.size, 0))
+
+
+__all__ = ["MIN_SEGMENT_S", "SETTLE_S", "Aligned", "Segment", "align", "split_segments"]

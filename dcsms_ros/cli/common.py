@@ -1,0 +1,145 @@
+"""Options and helpers shared by the ``dcsms`` sub-commands.
+
+``--config FILE``, ``--set NAME=VALUE`` (repeatable), ``--json`` and ``--plot DIR`` mean the same
+everywhere; :func:`load_cfg` turns the first two into a validated
+:class:`~dcsms_ros.core.config.SystemConfig`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dcsms_ros.core.config import SystemConfig, load_config, parse_override
+from dcsms_ros.errors import ConfigError, DcsmsError
+
+PACKAGE = "dcsms_ros"
+DEFAULT_PRESET = "table1.yaml"
+
+
+def share_candidates() -> Iterator[Path]:
+    """Directories that may hold this package's ``config/`` and ``launch/``, best first.
+
+    1. the source tree (a checkout, or ``pip install -e .``);
+    2. the ament index (a sourced colcon install: ``share/dcsms_ros``);
+    3. ``share/dcsms_ros`` beside the installed package (colcon install without sourcing) and
+       under ``sys.prefix`` (``pip install .`` puts data files there).
+
+    A generator, so the ament index is only consulted when the source tree has no match.
+    """
+    here = Path(__file__).resolve()
+    yield here.parents[2]
+    try:
+        from ament_index_python.packages import (
+            PackageNotFoundError,
+            get_package_share_directory,
+        )
+    except ImportError:  # ament_index_python is optional for the numeric commands
+        pass
+    else:
+        try:
+            yield Path(get_package_share_directory(PACKAGE))
+        except (PackageNotFoundError, OSError):  # OSError: AMENT_PREFIX_PATH is not set
+            pass
+    # <prefix>/lib/pythonX.Y/site-packages/dcsms_ros/cli/common.py -> <prefix>
+    if len(here.parents) > 5:
+        yield here.parents[5] / "share" / PACKAGE
+    yield Path(sys.prefix) / "share" / PACKAGE
+
+
+def find_share_file(relative: str) -> Path:
+    """Locate a packaged file such as ``config/table1.yaml`` (see :func:`share_candidates`).
+
+    Raises
+    ------
+    ConfigError
+        If no candidate directory holds it.
+    """
+    for base in share_candidates():
+        path = base / relative
+        if path.is_file():
+            return path
+    raise ConfigError(f"cannot find packaged file '{relative}' (looked in the source tree, the "
+                      f"ament index and {sys.prefix}/share/{PACKAGE})")
+
+
+def default_config_path() -> Path:
+    """The paper's Table 1 preset, ``config/table1.yaml``."""
+    return find_share_file(f"config/{DEFAULT_PRESET}")
+
+
+def add_config_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--config FILE`` and ``--set NAME=VALUE`` (repeatable)."""
+    parser.add_argument("--config", metavar="FILE", type=Path, default=None,
+                        help=f"ROS 2 params YAML (default: the packaged config/{DEFAULT_PRESET})")
+    parser.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
+                        dest="overrides",
+                        help="override one parameter after the file, e.g. --set m1=1200 or "
+                        "--set feedback.stage1.gain=[0,0,2e4,0,0,0]; dotted names or the "
+                        "aliases m1 m2 c1 c2 k1 k2 (repeatable)")
+
+
+def add_output_options(parser: argparse.ArgumentParser, plot: bool = True) -> None:
+    """Add ``--json`` (machine-readable stdout) and, if ``plot``, ``--plot DIR``."""
+    parser.add_argument("--json", action="store_true",
+                        help="print JSON on stdout instead of a table")
+    if plot:
+        parser.add_argument("--plot", metavar="DIR", type=Path, default=None,
+                            help="write PNG figures into DIR (created if needed)")
+
+
+def load_cfg(args: argparse.Namespace) -> SystemConfig:
+    """The configuration named by ``--config`` with every ``--set`` applied and validated."""
+    path = args.config if args.config is not None else default_config_path()
+    overrides = dict(parse_override(text) for text in args.overrides)
+    return load_config(path, overrides)
+
+
+def jsonable(x: Any) -> Any:
+    """Convert numpy scalars/arrays and complex numbers for :func:`json.dumps`; non-finite
+    floats become ``null`` (strict JSON has no Infinity/NaN)."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, (complex, np.complexfloating)):
+        return [jsonable(float(x.real)), jsonable(float(x.imag))]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    return x
+
+
+def print_json(obj: Any) -> None:
+    """Print ``obj`` as one strict-JSON document on stdout."""
+    print(json.dumps(jsonable(obj), allow_nan=False))
+
+
+def plot_dir(path: Path) -> Path:
+    """Create the ``--plot`` directory and select the non-interactive matplotlib backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # no display in CI or over ssh; must precede pyplot's import
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DcsmsError(f"--plot {path}: cannot create directory: {exc.strerror}") from None
+    return path
+
+
+__all__ = [
+    "add_config_options", "add_output_options", "default_config_path", "find_share_file",
+    "jsonable", "load_cfg", "plot_dir", "print_json", "share_candidates",
+]

@@ -1,0 +1,272 @@
+"""Controller step objects: gain fader, actuator allocation, feedback and feedforward loops.
+
+Each loop runs its discrete filters every sample, even while disabled, so that enabling it
+fades in a warm filter instead of a cold start. Saturation uses conditional integration: a
+sample whose forces clip restores the filter state from before that sample.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.filters import (
+    IDENTITY_SECTION,
+    TF,
+    SosFilter,
+    feedback_tf,
+    feedforward_tf,
+    to_sos,
+)
+from dcsms_ros.core.geometry import drive_matrix
+from dcsms_ros.errors import ConfigError
+
+Array = NDArray[np.float64]
+
+#: Index of the vertical axis in a 6-vector; a 1dof body carries only this one.
+Z_AXIS = 2
+
+
+class Fader:
+    """Linear gain ramp between 0 and 1.
+
+    Parameters
+    ----------
+    fade_time_s : float
+        Time for a full 0 -> 1 ramp, s; 0 switches instantly.
+    dt : float
+        Sample period, s.
+    on : bool
+        Initial state (value 1 if True, else 0).
+    """
+
+    def __init__(self, fade_time_s: float, dt: float, on: bool = False) -> None:
+        # an integer step counter keeps the ramp exact and free of accumulated rounding
+        self._n = max(0, int(round(fade_time_s / dt)))
+        self._k = self._n if on else 0
+        self._on = bool(on)
+        self._value = 1.0 if on else 0.0
+
+    @property
+    def value(self) -> float:
+        """Current gain in [0, 1]."""
+        return self._value
+
+    @property
+    def target(self) -> bool:
+        return self._on
+
+    def set_target(self, on: bool) -> None:
+        """Ramp towards 1 (True) or 0 (False) from the current value."""
+        self._on = bool(on)
+
+    def step(self) -> float:
+        """Advance one sample and return the new gain."""
+        if self._n == 0:
+            self._value = 1.0 if self._on else 0.0
+            return self._value
+        if self._on and self._k < self._n:
+            self._k += 1
+        elif not self._on and self._k > 0:
+            self._k -= 1
+        self._value = self._k / self._n
+        return self._value
+
+
+class Allocator:
+    """Actuators of one stage: drive matrix, pseudo-inverse allocation and force limit.
+
+    Parameters
+    ----------
+    cfg : SystemConfig
+    stage_index : int
+        1-based stage number.
+
+    Notes
+    -----
+    6dof: ``B = drive_matrix(actuators, stage.com)``, shape (6, n_act), limit per actuator
+    ``force_limit_n``. 1dof: the vertical actuators are one lumped channel, ``B = [[1]]``,
+    limit ``actuator_count * force_limit_n``.
+    """
+
+    def __init__(self, cfg: SystemConfig, stage_index: int) -> None:
+        if not 1 <= stage_index <= cfg.plant.num_stages:
+            raise ConfigError(f"{cfg.source}: stage {stage_index} does not exist "
+                              f"(num_stages = {cfg.plant.num_stages})")
+        st = cfg.plant.stages[stage_index - 1]
+        if cfg.plant.dof == 1:
+            self.b = np.ones((1, 1))
+            self.limit = float(st.actuator_count * cfg.actuators.force_limit_n)
+        else:
+            self.b = drive_matrix(np.array(st.actuators.position),
+                                  np.array(st.actuators.direction), np.array(st.com))
+            self.limit = float(cfg.actuators.force_limit_n)
+        self.pinv: Array = np.asarray(np.linalg.pinv(self.b), dtype=np.float64)
+
+    @property
+    def n_act(self) -> int:
+        return int(self.b.shape[1])
+
+    def forces(self, wrench: ArrayLike) -> Array:
+        """Least-norm actuator forces (n_act,) N for a wrench (dof,) at the reference point."""
+        return self.pinv @ np.asarray(wrench, dtype=np.float64)
+
+    def clip(self, forces: ArrayLike) -> tuple[Array, int]:
+        """Clip each force to +-limit; returns (clipped (n_act,), number of clipped actuators)."""
+        f = np.asarray(forces, dtype=np.float64)
+        n = int(np.count_nonzero(np.abs(f) > self.limit))
+        return (np.clip(f, -self.limit, self.limit).astype(np.float64) if n else f.copy()), n
+
+    def wrench(self, forces: ArrayLike) -> Array:
+        """Wrench (dof,) at the reference point produced by actuator forces (n_act,)."""
+        return self.b @ np.asarray(forces, dtype=np.float64)
+
+
+class _Loop:
+    """Shared machinery: per-axis SOS filters, fader, allocation, anti-windup, fault counters."""
+
+    def __init__(self, cfg: SystemConfig, stage_index: int, tfs: dict[int, TF],
+                 enabled: bool, prewarp_hz: float = 0.0) -> None:
+        self.dof = cfg.plant.dof
+        self.stage_index = stage_index
+        #: continuous compensator per active axis, keyed by index into the (dof,) vector
+        self.tfs = tfs
+        self._axes = np.array(sorted(tfs), dtype=np.intp)
+        self.allocator = Allocator(cfg, stage_index)
+        fs = cfg.plant.rate_hz
+        sos = [to_sos(tfs[a], fs, prewarp_hz) for a in self._axes]
+        n_sec = max((s.shape[0] for s in sos), default=1)
+        # pad with pass-through sections so every axis stacks into one vectorised filter
+        sos = [np.vstack([s] + [IDENTITY_SECTION[None, :]] * (n_sec - s.shape[0])) for s in sos]
+        self._filter = SosFilter(np.array(sos) if sos else np.zeros((0, 1, 6)), len(sos))
+        self._saved = self._filter.get_state()
+        self.fader = Fader(cfg.control.fade_time_s, cfg.plant.dt, on=enabled)
+        self.fader.set_target(enabled)
+        self.saturations = 0
+        self.nonfinite = 0
+        self.last_saturated = 0
+
+    @property
+    def enabled(self) -> bool:
+        return self.fader.target
+
+    def enable(self, on: bool) -> None:
+        """Fade the output in (True) or out (False) over ``control.fade_time_s``."""
+        self.fader.set_target(on)
+
+    def reset(self) -> None:
+        """Zero the filter states and the counters (the fader keeps its value)."""
+        self._filter.reset()
+        self.saturations = 0
+        self.nonfinite = 0
+        self.last_saturated = 0
+
+    def step(self, twist: ArrayLike) -> Array:
+        """One sample: measured twist (dof,) m/s, rad/s -> wrench (dof,) N, N*m on the stage.
+
+        A non-finite input gives zero output and leaves the states untouched (``nonfinite``
+        counts it). Forces beyond the actuator limit are clipped (``saturations`` counts the
+        samples) and that sample's filter update is undone.
+        """
+        x = np.asarray(twist, dtype=np.float64)
+        fade = self.fader.step()
+        w = np.zeros(self.dof)
+        if not np.isfinite(x).all():
+            self.nonfinite += 1
+            self.last_saturated = 0
+            return w
+        self._filter.get_state(self._saved)
+        y = self._filter.step(x[self._axes])
+        w[self._axes] = -fade * y
+        self.last_saturated = 0
+        if fade == 0.0:
+            return w
+        clipped, n_sat = self.allocator.clip(self.allocator.forces(w))
+        if n_sat == 0:
+            return w
+        self.saturations += 1
+        self.last_saturated = n_sat
+        self._filter.set_state(self._saved)
+        return self.allocator.wrench(clipped)
+
+
+def _axes(dof: int, axes6: range) -> list[tuple[int, int]]:
+    """(index into the dof vector, index into 6-vectors) of the axes a body carries."""
+    if dof == 1:
+        return [(0, Z_AXIS)] if Z_AXIS in axes6 else []
+    return [(a, a) for a in axes6]
+
+
+class FeedbackLoop(_Loop):
+    """Velocity feedback of stage ``stage_index`` (1-based): ``w = -fade * feedback_tf * v``.
+
+    Parameters
+    ----------
+    cfg : SystemConfig
+        Uses ``feedback[stage_index - 1]``, ``control.fade_time_s``, ``actuators``.
+    stage_index : int
+    enabled : bool
+        Initial state; True starts at full gain without a fade.
+    """
+
+    def __init__(self, cfg: SystemConfig, stage_index: int, enabled: bool = False) -> None:
+        if not 1 <= stage_index <= len(cfg.feedback):
+            raise ConfigError(f"{cfg.source}: no feedback settings for stage {stage_index}")
+        fb = cfg.feedback[stage_index - 1]
+        tfs = {i: feedback_tf(fb, a) for i, a in _axes(cfg.plant.dof, range(6))
+               if fb.gain[a] != 0.0}
+        # prewarp at the notch so the discrete notch sits exactly where it was designed
+        pw = fb.notch_hz if 0.0 < fb.notch_hz < cfg.plant.rate_hz / 2.0 else 0.0
+        super().__init__(cfg, stage_index, tfs, enabled, pw)
+
+
+def suspension_totals(cfg: SystemConfig, stage_index: int = 1) -> list[tuple[float, float]]:
+    """(damping N*s/m, stiffness N/m) of a stage's suspension along x, y, z.
+
+    1dof: the vertical values on every axis; 6dof: the sums over its mounts per axis.
+    """
+    st = cfg.plant.stages[stage_index - 1]
+    if cfg.plant.dof == 1:
+        return [(st.damping, st.stiffness)] * 3
+    return [(sum(c[j] for c in st.mounts.damping), sum(k[j] for k in st.mounts.stiffness))
+            for j in range(3)]
+
+
+class FeedforwardLoop(_Loop):
+    """Ground feedforward into the stage-1 actuators: ``w = -fade * feedforward_tf * v_b``.
+
+    Each translational axis uses the stage-1 suspension totals of that axis
+    (:func:`suspension_totals`); rotations get no feedforward.
+    """
+
+    def __init__(self, cfg: SystemConfig, enabled: bool = False) -> None:
+        totals = suspension_totals(cfg, 1)
+        ff = cfg.feedforward
+        tfs = {i: feedforward_tf(ff, *totals[a]) for i, a in _axes(cfg.plant.dof, range(3))
+               if ff.gain != 0.0 and (totals[a][0] != 0.0 or totals[a][1] != 0.0)}
+        super().__init__(cfg, 1, tfs, enabled)
+
+
+_ID = re.compile(r"^(fb|ff)_stage([1-9][0-9]*)$")
+
+
+def make_controller(cfg: SystemConfig, controller_id: str,
+                    enabled: bool = False) -> FeedbackLoop | FeedforwardLoop:
+    """Build a controller from its id: ``fb_stage<i>`` (i = 1..N) or ``ff_stage1``."""
+    m = _ID.match(controller_id)
+    if m is None or (m.group(1) == "ff" and m.group(2) != "1"):
+        raise ConfigError(f"unknown controller {controller_id!r}; expected fb_stage<i> or "
+                          f"ff_stage1")
+    i = int(m.group(2))
+    if m.group(1) == "ff":
+        return FeedforwardLoop(cfg, enabled)
+    if i > cfg.plant.num_stages:
+        raise ConfigError(f"{cfg.source}: {controller_id}: only {cfg.plant.num_stages} stages")
+    return FeedbackLoop(cfg, i, enabled)
+
+
+__all__ = ["Allocator", "Fader", "FeedbackLoop", "FeedforwardLoop", "make_controller",
+           "suspension_totals"]

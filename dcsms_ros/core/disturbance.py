@@ -1,0 +1,207 @@
+"""Seeded band-limited white-noise disturbances: ground velocity and table forces.
+
+Noise is generated in blocks of :data:`BLOCK` samples from a ``numpy.random.Generator`` and
+served sample by sample, so the sequence depends only on the seed, never on how callers
+consume it (``next()`` per sample or ``block(n)``).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import signal
+
+from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.errors import ConfigError
+
+Array = NDArray[np.float64]
+
+#: Samples generated per refill.
+BLOCK = 1024
+#: Butterworth order of each band edge.
+ORDER = 2
+
+
+def band_sos(band_hz: tuple[float, float] | ArrayLike, fs: float) -> Array | None:
+    """Digital Butterworth SOS for the band ``[lo, hi]`` Hz at ``fs``; None for no filtering.
+
+    ``lo <= 0`` gives a low-pass and ``hi >= fs/2`` a high-pass.
+    """
+    lo, hi = (float(b) for b in np.asarray(band_hz, float).ravel()[:2])
+    nyq = fs / 2.0
+    if hi <= lo:
+        raise ConfigError(f"noise band [{lo:g}, {hi:g}] Hz: the upper edge must exceed the lower")
+    if lo <= 0.0 and hi >= nyq:
+        return None
+    if lo <= 0.0:
+        sos = signal.butter(ORDER, hi, btype="lowpass", fs=fs, output="sos")
+    elif hi >= nyq:
+        sos = signal.butter(ORDER, lo, btype="highpass", fs=fs, output="sos")
+    else:
+        sos = signal.butter(ORDER, [lo, hi], btype="bandpass", fs=fs, output="sos")
+    return np.asarray(sos, dtype=np.float64)
+
+
+def _slowest_pole_radius(sos: Array) -> float:
+    return max(float(np.max(np.abs(np.roots(sec[3:])))) if np.any(sec[4:]) else 0.0
+               for sec in sos)
+
+
+def noise_gain(sos: Array | None) -> float:
+    """Output variance per unit input variance of white noise: the impulse-response energy."""
+    if sos is None:
+        return 1.0
+    r = _slowest_pole_radius(sos)
+    # long enough for the response energy to fall below 1e-16 of its start
+    n = 64 if r <= 0.0 else int(math.ceil(math.log(1e-16) / (2.0 * math.log(r)))) + 64
+    imp = np.zeros(min(n, 10_000_000))
+    imp[0] = 1.0
+    h = signal.sosfilt(sos, imp)
+    return float(np.dot(h, h))
+
+
+class BandNoise:
+    """Gaussian white noise through a Butterworth band-pass, scaled to a given RMS.
+
+    Parameters
+    ----------
+    rms : float or array_like, shape (channels,)
+        Wanted output RMS per channel (units of the output).
+    band_hz : (lo, hi)
+        Pass band in Hz.
+    fs : float
+        Sample rate in Hz.
+    channels : int
+    rng : numpy.random.Generator
+
+    Notes
+    -----
+    The filter is warmed up on discarded noise until its start transient has decayed, so the
+    first sample served is already stationary.
+    """
+
+    def __init__(self, rms: float | ArrayLike, band_hz: tuple[float, float] | ArrayLike,
+                 fs: float, channels: int, rng: np.random.Generator) -> None:
+        self.channels = int(channels)
+        self._rng = rng
+        self._sos = band_sos(band_hz, fs)
+        self._scale = (np.broadcast_to(np.asarray(rms, float), (self.channels,))
+                       / math.sqrt(noise_gain(self._sos)))
+        self._zi = (None if self._sos is None
+                    else np.zeros((self._sos.shape[0], 2, self.channels)))
+        self._buf = np.zeros((0, self.channels))
+        self._k = 0
+        if self._sos is not None:
+            r = _slowest_pole_radius(self._sos)
+            n_warm = 0 if r <= 0.0 else int(math.ceil(math.log(1e-6) / math.log(r)))
+            for _ in range(-(-n_warm // BLOCK)):
+                self._refill()
+
+    def _refill(self) -> None:
+        w = self._rng.standard_normal((BLOCK, self.channels))
+        if self._sos is not None:
+            w, self._zi = signal.sosfilt(self._sos, w, axis=0, zi=self._zi)
+        w *= self._scale
+        w.flags.writeable = False  # rows are handed out as views
+        self._buf = w
+        self._k = 0
+
+    def next(self) -> Array:
+        """The next sample, shape (channels,) (read-only view)."""
+        if self._k >= self._buf.shape[0]:
+            self._refill()
+        row = self._buf[self._k]
+        self._k += 1
+        return row
+
+    def block(self, n: int) -> Array:
+        """The next ``n`` samples, shape (n, channels); same values as ``n`` calls of next()."""
+        out = np.empty((n, self.channels))
+        i = 0
+        while i < n:
+            if self._k >= self._buf.shape[0]:
+                self._refill()
+            m = min(n - i, self._buf.shape[0] - self._k)
+            out[i:i + m] = self._buf[self._k:self._k + m]
+            self._k += m
+            i += m
+        return out
+
+
+class Disturbances:
+    """Ground velocity and table-force disturbances of one run.
+
+    Parameters
+    ----------
+    cfg : SystemConfig
+        Uses ``cfg.disturbance`` and ``cfg.plant`` (rate, stages, dof).
+    seed : int or numpy.random.SeedSequence, optional
+        Defaults to ``cfg.disturbance.seed``; the ground and force streams are independent
+        children (``SeedSequence(seed).spawn(2)``).
+    ground : array_like, shape (K, dof) or (K,) for 1dof, optional
+        Recorded ground twist (m/s, rad/s) replayed instead of the ground noise. It loops when
+        it ends and ``ground_exhausted`` becomes True (a warning is issued once).
+    """
+
+    def __init__(self, cfg: SystemConfig, seed: int | np.random.SeedSequence | None = None,
+                 ground: ArrayLike | None = None) -> None:
+        d = cfg.disturbance
+        fs = cfg.plant.rate_hz
+        self.dof = cfg.plant.dof
+        self.num_stages = cfg.plant.num_stages
+        ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(
+            d.seed if seed is None else int(seed))
+        g_ss, f_ss = ss.spawn(2)
+        self._ntrans = 1 if self.dof == 1 else 3
+        self._ground: Array | None = None
+        self._gnoise: BandNoise | None = None
+        if ground is not None:
+            g = np.asarray(ground, dtype=np.float64)
+            if g.ndim == 1 and self.dof == 1:
+                g = g[:, None]
+            if g.ndim != 2 or g.shape[1] != self.dof or g.shape[0] == 0:
+                raise ConfigError(f"ground replay: expected shape (K, {self.dof}), got "
+                                  f"{np.shape(ground)}")
+            if not np.isfinite(g).all():
+                raise ConfigError("ground replay: contains NaN or Inf")
+            self._ground = g
+        else:
+            rms = d.ground_rms_mps[2:3] if self.dof == 1 else d.ground_rms_mps
+            self._gnoise = BandNoise(rms, d.ground_band_hz, fs, self._ntrans,
+                                     np.random.default_rng(g_ss))
+        self._fnoise = BandNoise(d.force_rms_n, d.force_band_hz, fs,
+                                 self.num_stages * self._ntrans, np.random.default_rng(f_ss))
+        self.k = 0
+        self.ground_exhausted = False
+
+    def next(self) -> tuple[Array, Array]:
+        """Disturbances of the next sample.
+
+        Returns
+        -------
+        ground_twist : ndarray, shape (dof,)
+            Ground velocity at the world origin, m/s (rotations zero).
+        table_wrench : ndarray, shape (N, dof)
+            Force on each stage at its reference point, N (moments zero).
+        """
+        g = np.zeros(self.dof)
+        if self._ground is not None:
+            k = self.k % self._ground.shape[0]
+            if k == 0 and self.k > 0 and not self.ground_exhausted:
+                self.ground_exhausted = True
+                warnings.warn("ground replay ended; looping from its start", RuntimeWarning,
+                              stacklevel=2)
+            g[:] = self._ground[k]
+        else:
+            assert self._gnoise is not None
+            g[:self._ntrans] = self._gnoise.next()
+        w = np.zeros((self.num_stages, self.dof))
+        w[:, :self._ntrans] = self._fnoise.next().reshape(self.num_stages, self._ntrans)
+        self.k += 1
+        return g, w
+
+
+__all__ = ["BLOCK", "BandNoise", "Disturbances", "band_sos", "noise_gain"]
