@@ -91,3 +91,7 @@ def check_geometry(cfg: SystemConfig) -> None:
             check_full_rank(b, f"{st.name}.actuators (drive matrix)")
     except GeometryError as exc:
         raise ConfigError(f"{cfg.source}: {exc}") from None
+    from dcsms_ros.core.model import suspension_matrices  # model imports this module
+
+    for i in range(1, cfg.plant.num_stages + 1):
+        suspension_matrices(cfg, i)  # raises ConfigError naming stageN.mounts and the file

@@ -43,10 +43,10 @@ def test_into_replaces_between_markers(capsys: pytest.CaptureFixture[str],
                                        tmp_path: Path) -> None:
     """--into rewrites only the marked section; a file without markers is an error (exit 2)."""
     doc = tmp_path / "doc.md"
-    doc.write_text(f"intro\n{BEGIN}\nold\n{END}\noutro\n")
+    doc.write_text(f"intro\n{BEGIN}\nSTALE TABLE\n{END}\noutro\n")
     assert main(["params", "--markdown", "--into", str(doc)]) == 0
     text = doc.read_text()
-    assert text.startswith("intro\n") and text.endswith("outro\n") and "old" not in text
+    assert text.startswith("intro\n") and text.endswith("outro\n") and "STALE" not in text
     doc.write_text("no markers")
     assert main(["params", "--markdown", "--into", str(doc)]) == 2
     assert "markers" in capsys.readouterr().err

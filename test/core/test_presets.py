@@ -117,4 +117,4 @@ def test_singular_mount_geometry_fails_naming_field_and_file(tmp_path):
     path = tmp_path / "bad_mounts.yaml"
     path.write_text(yaml.safe_dump(doc))
     with pytest.raises(ConfigError, match=r"bad_mounts\.yaml.*stage2\.mounts"):
-        plant_state_space(load_config(path))
+        load_config(path)
