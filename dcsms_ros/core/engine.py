@@ -121,5 +121,6 @@ def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None 
         if progress is not None and k % every == 0:
             progress(k / steps)
     counters = {"nonfinite_inputs": sim.nonfinite_inputs, "saturations": sim.saturations}
-    return SimResult(cfg, np.arange(steps, dtype=np.float64) * cfg.plant.dt, truth, raw, vel, wrench, applied,
-                     modes, [c.name for c in sim.channels], list(sim.actuator_names), counters)
+    t = np.arange(steps, dtype=np.float64) * cfg.plant.dt
+    return SimResult(cfg, t, truth, raw, vel, wrench, applied, modes,
+                     [c.name for c in sim.channels], list(sim.actuator_names), counters)

@@ -145,6 +145,7 @@ STAGE_SPECS: tuple[ParamSpec, ...] = (
 STAGE_DEFAULTS: dict[str, Any] = {
     "stage2.mass": 748.8,
     "feedback.stage1.gain": [0.0, 0.0, 1.5e4, 0.0, 0.0, 0.0],
+    "feedback.stage2.gain": [0.0, 0.0, 4.5e4, 0.0, 0.0, 0.0],
 }
 
 #: Short names accepted by ``--set`` and ``sweep --param``: m1 -> stage1.mass and so on.

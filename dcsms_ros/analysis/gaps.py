@@ -1,0 +1,183 @@
+"""Per-topic recording statistics: message counts, sequence gaps and time gaps (no rclpy).
+
+The recorder calls :meth:`TopicStats.add` from its subscription callbacks, so the method is
+kept to a few integer operations per message.
+
+Two kinds of gap are counted:
+
+sequence gap
+    The DDS ``publication_sequence_number`` of a publisher jumped by more than 1: messages were
+    published but never reached the recorder (dropped by a full queue or a best-effort link).
+    A *decrease* means the publisher restarted (new writer, numbering from 1 again) and is
+    counted as a restart, not a gap. The number is per publisher, so the check is switched off
+    for a topic with several publishers (their numbers interleave).
+time gap
+    For stamped types, two consecutive header stamps further apart than
+    :data:`GAP_FACTOR` times the topic's median stamp period: samples are missing from the
+    *data* (the publisher skipped or stalled), whatever the transport did. The median is taken
+    over the first :data:`WARMUP` intervals, which are then re-checked; afterwards each interval
+    is checked as it arrives, so memory stays constant on long recordings.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+#: An interval longer than this many median periods is a time gap.
+GAP_FACTOR = 1.5
+#: Intervals used to estimate the median stamp period.
+WARMUP = 64
+#: Gap examples kept per topic (all gaps are counted).
+MAX_EXAMPLES = 5
+
+
+@dataclass
+class TopicStats:
+    """Counters of one recorded topic.
+
+    Attributes
+    ----------
+    topic, msgtype : str
+    stamped : bool
+        True if the type starts with a header stamp (time gaps are checked).
+    check_seq : bool
+        False when several publishers share the topic (sequence numbers interleave).
+    count : int
+        Messages received (and written).
+    seq_gaps, seq_missing, restarts : int
+        Sequence jumps > 1, messages missing in them, sequence decreases.
+    time_gaps, backwards : int
+        Stamp intervals > GAP_FACTOR x median, and stamps that went backwards.
+    median_period_ns : int or None
+        Median header-stamp period (ns) once known.
+    examples : list of (int, int)
+        ``(stamp before, stamp after)`` in ns of the first time gaps.
+    first_recv_ns, last_recv_ns : int
+        Receive times (system clock, ns) of the first and last message.
+    """
+
+    topic: str
+    msgtype: str
+    stamped: bool = False
+    check_seq: bool = True
+    count: int = 0
+    seq_gaps: int = 0
+    seq_missing: int = 0
+    restarts: int = 0
+    time_gaps: int = 0
+    backwards: int = 0
+    median_period_ns: int | None = None
+    examples: list[tuple[int, int]] = field(default_factory=list)
+    first_recv_ns: int = 0
+    last_recv_ns: int = 0
+    _last_seq: int | None = None
+    _last_stamp: int | None = None
+    _warm: list[tuple[int, int]] = field(default_factory=list)
+
+    def add(self, seq: int | None, stamp_ns: int | None, recv_ns: int) -> None:
+        """Account one message: its publication sequence number, header stamp (ns) and receive
+        time (ns); ``seq`` or ``stamp_ns`` may be None when unknown."""
+        self.count += 1
+        if self.count == 1:
+            self.first_recv_ns = recv_ns
+        self.last_recv_ns = recv_ns
+        if seq is not None:
+            last = self._last_seq
+            if last is not None and self.check_seq:
+                step = seq - last
+                if step > 1:
+                    self.seq_gaps += 1
+                    self.seq_missing += step - 1
+                elif step <= 0:
+                    self.restarts += 1
+            self._last_seq = seq
+        if stamp_ns is not None:
+            prev = self._last_stamp
+            self._last_stamp = stamp_ns
+            if prev is None:
+                return
+            if self.median_period_ns is None:
+                self._warm.append((prev, stamp_ns))
+                if len(self._warm) >= WARMUP:
+                    self._settle()
+            else:
+                self._check(prev, stamp_ns)
+
+    def _check(self, prev: int, cur: int) -> None:
+        dt = cur - prev
+        if dt < 0:
+            self.backwards += 1
+        elif self.median_period_ns and dt > GAP_FACTOR * self.median_period_ns:
+            self.time_gaps += 1
+            if len(self.examples) < MAX_EXAMPLES:
+                self.examples.append((prev, cur))
+
+    def _settle(self) -> None:
+        """Fix the median period from the warm-up intervals and check them."""
+        positive = [b - a for a, b in self._warm if b > a]
+        if not positive:
+            return
+        self.median_period_ns = int(statistics.median(positive))
+        warm, self._warm = self._warm, []
+        for a, b in warm:
+            self._check(a, b)
+
+    def finish(self) -> None:
+        """Check the warm-up intervals of a topic that never had :data:`WARMUP` of them."""
+        if self.median_period_ns is None and len(self._warm) >= 2:
+            self._settle()
+
+    @property
+    def rate_hz(self) -> float:
+        """Mean receive rate over the recording (Hz); 0 for fewer than two messages."""
+        span = self.last_recv_ns - self.first_recv_ns
+        return (self.count - 1) * 1e9 / span if self.count > 1 and span > 0 else 0.0
+
+    @property
+    def ok(self) -> bool:
+        """No sequence gap, no time gap, no backwards stamp."""
+        return not (self.seq_gaps or self.time_gaps or self.backwards)
+
+    def as_dict(self) -> dict[str, object]:
+        """The counters as a JSON-friendly dict."""
+        return {"topic": self.topic, "type": self.msgtype, "count": self.count,
+                "rate_hz": round(self.rate_hz, 3), "seq_gaps": self.seq_gaps,
+                "seq_missing": self.seq_missing, "seq_checked": self.check_seq,
+                "restarts": self.restarts, "time_gaps": self.time_gaps,
+                "backwards": self.backwards, "median_period_ns": self.median_period_ns,
+                "gap_examples_ns": [list(e) for e in self.examples]}
+
+
+def format_report(stats: Sequence[TopicStats], missing: Sequence[str] = ()) -> str:
+    """A per-topic table (count, rate, gaps) and a verdict line, as text.
+
+    Parameters
+    ----------
+    stats : sequence of TopicStats
+    missing : sequence of str
+        Requested topics never seen (no publisher appeared).
+    """
+    lines = [f"{'topic':<34} {'count':>9} {'rate Hz':>9} {'seq gaps':>9} {'time gaps':>9}"]
+    for s in sorted(stats, key=lambda s: s.topic):
+        seq = f"{s.seq_gaps}({s.seq_missing})" if s.check_seq else "n/a"
+        tg = str(s.time_gaps) if s.stamped else "-"
+        if s.backwards:
+            tg += f" {s.backwards}<"
+        lines.append(f"{s.topic:<34} {s.count:>9} {s.rate_hz:>9.1f} {seq:>9} {tg:>9}")
+        for a, b in s.examples:
+            lines.append(f"    time gap {(b - a) * 1e-6:.3f} ms after stamp {a * 1e-9:.6f} s "
+                         f"(median period {(s.median_period_ns or 0) * 1e-6:.3f} ms)")
+        if s.restarts:
+            lines.append(f"    publisher restarted {s.restarts} time(s)")
+    for t in missing:
+        lines.append(f"{t:<34} {'never published':>9}")
+    total = sum(s.count for s in stats)
+    bad = [s.topic for s in stats if not s.ok]
+    lines.append(f"total {total} messages on {len(stats)} topics; "
+                 + ("no gaps" if not bad else f"gaps on {', '.join(sorted(bad))}"))
+    return "\n".join(lines)
+
+
+__all__ = ["GAP_FACTOR", "MAX_EXAMPLES", "WARMUP", "TopicStats", "format_report"]

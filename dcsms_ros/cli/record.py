@@ -1,0 +1,69 @@
+"""``dcsms record OUT``: record the graph's topics into a rosbag2 bag until Ctrl-C/SIGTERM.
+
+The recorder runs in this process (:func:`dcsms_ros.nodes.recorder.record`); SIGINT and SIGTERM
+end it cleanly with exit status 0 after every queued message was written, and the per-topic
+counts and gaps are printed on stdout. ``dcsms up --record OUT`` starts the same command as a
+child process (:func:`recorder_command`) and stops it with SIGINT.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from dcsms_ros.errors import BagError, DcsmsError
+
+STORAGES = ("mcap", "sqlite3")
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``record`` sub-command."""
+    p = subparsers.add_parser(
+        "record", help="record the graph's topics into a bag",
+        description="Record topics (default: every /dcsms/* topic, discovered as they appear; "
+        "/clock only when named) into a new rosbag2 bag. Ctrl-C or SIGTERM stops cleanly: "
+        "the bag is closed, nothing received is lost, counts and gaps are printed.")
+    p.add_argument("out", type=Path, metavar="OUT", help="bag directory to create (must not "
+                   "exist)")
+    p.add_argument("--topics", nargs="+", metavar="T", default=None,
+                   help="topic names or fnmatch patterns (default: /dcsms/*)")
+    p.add_argument("--storage", choices=STORAGES, default="mcap",
+                   help="rosbag2 storage plugin (default: mcap)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S seconds of wall time (default: until Ctrl-C/SIGTERM)")
+    p.set_defaults(func=run)
+
+
+def recorder_command(out: str | Path, topics: Sequence[str] | None = None,
+                     storage: str = "mcap", duration_s: float | None = None) -> list[str]:
+    """The argv that runs ``dcsms record`` as a child process with this interpreter.
+
+    Start it with ``subprocess.Popen`` before the graph's publishers, stop it with
+    ``proc.send_signal(signal.SIGINT)`` (or SIGTERM) and ``proc.wait()``: exit 0 means the bag
+    is complete; the report is on the child's stdout.
+    """
+    cmd = [sys.executable, "-m", "dcsms_ros.cli", "record", str(out), "--storage", storage]
+    if topics:
+        cmd += ["--topics", *topics]
+    if duration_s is not None:
+        cmd += ["--duration", repr(float(duration_s))]
+    return cmd
+
+
+def run(args: argparse.Namespace) -> int:
+    """Handler: record, print the report, return 0."""
+    if args.out.exists() or args.out.with_name(args.out.name + ".partial").exists():
+        raise BagError(f"{args.out}: exists already, not overwriting")
+    if args.duration is not None and not args.duration > 0:
+        raise DcsmsError(f"--duration {args.duration}: must be > 0")
+    from dcsms_ros.nodes.recorder import record  # rclpy: imported only when recording
+
+    report = record(str(args.out), args.topics, args.storage, args.duration, args=[])
+    print(report, flush=True)
+    return 0
+
+
+__all__ = ["recorder_command", "register", "run"]

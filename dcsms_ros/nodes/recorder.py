@@ -1,0 +1,332 @@
+"""Recorder node: serialized subscriptions to the graph's topics, written to a rosbag2 bag.
+
+Topics and their types are discovered from the graph (every ``discovery_period_s``), so topics
+that appear late are recorded too. Each subscription asks for the QoS its publishers offer, as
+``ros2 bag record`` does: reliable if every publisher is reliable, transient local if every
+publisher is (so the latched ``/dcsms/mode`` and ``/dcsms/config`` published before the recorder
+started are recorded), history keep-last ``queue_depth``.
+
+Messages are never deserialised: the callback receives the CDR bytes (``raw=True``) and hands
+them to :class:`~dcsms_ros.analysis.bagio.BagWriter` with the DDS receive time as the bag time
+(what ``ros2 bag record`` logs). It only unpacks the 8 header-stamp bytes of stamped types for
+the time-gap check (:mod:`dcsms_ros.analysis.gaps`).
+
+``/clock`` is not recorded by default (default ``topics`` is ``/dcsms/*``): at 2 kHz it only
+duplicates the header stamps every ``/dcsms`` topic carries and would cost ~7 % of the
+recorder's budget; name it in ``topics`` to record it.
+
+Shutdown (SIGINT, SIGTERM or ``duration_s``): rclpy's own signal handlers are not installed
+(they would invalidate the context before the queues are read); a Python handler sets a flag,
+the spin loop ends, and :meth:`Recorder.drain` takes everything still queued in the DDS readers
+until every active topic shows a message received after the signal, or no message arrived for
+``QUIET_S``, or ``DRAIN_MAX_S`` passed. Then the bag is closed (``metadata.yaml``) and renamed
+into place: nothing received before the signal is lost.
+
+Parameters: ``out`` (bag directory), ``topics`` (names or fnmatch patterns, default
+``["/dcsms/*"]``), ``storage`` (mcap | sqlite3), ``queue_depth`` (1000), ``duration_s``
+(0 = until a signal), ``report_period_s`` (10), ``discovery_period_s`` (0.5).
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import importlib
+import os
+import signal
+import sys
+import time
+from collections.abc import Callable, Sequence
+from struct import unpack_from
+from typing import Any
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from dcsms_ros.analysis.bagio import BagWriter
+from dcsms_ros.analysis.gaps import TopicStats, format_report
+from dcsms_ros.errors import BagError, DcsmsError
+
+NODE_NAME = "dcsms_recorder"
+DEFAULT_TOPICS = ("/dcsms/*",)
+#: Drain ends once no message arrived for this long (s) ...
+QUIET_S = 0.1
+#: ... or after this long (s) at most, for a publisher that keeps publishing.
+DRAIN_MAX_S = 2.0
+_INF_NS = 2**63 - 1
+
+
+def _msg_class(msgtype: str) -> Any:
+    """The generated Python class of ``pkg/msg/Name``."""
+    pkg, _, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+def _stamped(cls: Any, msgtype: str) -> bool:
+    """True if the first 8 bytes of the body are a stamp (header types and Clock)."""
+    if msgtype == "rosgraph_msgs/msg/Clock":
+        return True
+    fields = list(cls.get_fields_and_field_types().items())
+    return bool(fields) and fields[0] == ("header", "std_msgs/Header")
+
+
+def _dur(ns: int) -> str:
+    ns = min(int(ns), _INF_NS)
+    return f"{{sec: {ns // 1_000_000_000}, nsec: {ns % 1_000_000_000}}}"
+
+
+def qos_yaml(profiles: Sequence[Any]) -> str:
+    """Offered QoS profiles (rclpy ``QoSProfile``) as rosbag2 v9 metadata YAML, one per
+    publisher, as ``ros2 bag record`` writes them."""
+    out = []
+    for q in profiles:
+        out.append(f"- history: {q.history.name.lower()}\n  depth: {int(q.depth)}\n"
+                   f"  reliability: {q.reliability.name.lower()}\n"
+                   f"  durability: {q.durability.name.lower()}\n"
+                   f"  deadline: {_dur(q.deadline.nanoseconds)}\n"
+                   f"  lifespan: {_dur(q.lifespan.nanoseconds)}\n"
+                   f"  liveliness: {q.liveliness.name.lower()}\n"
+                   f"  liveliness_lease_duration: {_dur(q.liveliness_lease_duration.nanoseconds)}"
+                   f"\n  avoid_ros_namespace_conventions: "
+                   f"{str(bool(q.avoid_ros_namespace_conventions)).lower()}\n")
+    return "".join(out)
+
+
+def subscription_qos(profiles: Sequence[Any], depth: int) -> QoSProfile:
+    """The QoS that matches every offered profile (rosbag2's rule), keep-last ``depth``."""
+    reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in profiles)
+    latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in profiles)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+class Recorder(Node):
+    """Record matching topics into a new bag.
+
+    Parameters
+    ----------
+    out, topics, storage, duration_s : optional
+        Override the ROS parameters of the same name (used by ``dcsms record``).
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (e.g. ``context``).
+
+    Raises
+    ------
+    BagError
+        If the bag cannot be created (exists already, bad storage).
+    """
+
+    def __init__(self, out: str | None = None, topics: Sequence[str] | None = None,
+                 storage: str | None = None, duration_s: float | None = None,
+                 **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        p = self.declare_parameter
+        self.out = out or str(p("out", "dcsms_bag").value)
+        self.patterns = list(topics or p("topics", list(DEFAULT_TOPICS)).value)
+        self.storage = storage or str(p("storage", "mcap").value)
+        dur = p("duration_s", 0.0).value if duration_s is None else duration_s
+        self.duration_s = float(dur or 0.0)
+        self.depth = int(p("queue_depth", 1000).value)
+        report_s = float(p("report_period_s", 10.0).value)
+        discovery_s = float(p("discovery_period_s", 0.5).value)
+        self.writer = BagWriter(self.out, self.storage)
+        self.stats: dict[str, TopicStats] = {}
+        self._publishers: dict[str, int] = {}
+        self._skipped: set[str] = set()
+        self._subs: list[Any] = []
+        self._t_start = time.monotonic()
+        self._reported = (0, self._t_start, 0)
+        self.total = 0
+        self._discover()
+        self.create_timer(discovery_s, self._discover)
+        if report_s > 0:
+            self.create_timer(report_s, self._report)
+
+    # -- discovery ------------------------------------------------------------------------
+
+    def _wanted(self, topic: str) -> bool:
+        return any(fnmatch.fnmatchcase(topic, pat) for pat in self.patterns)
+
+    def _discover(self) -> None:
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._skipped or not self._wanted(topic):
+                continue
+            infos = self.get_publishers_info_by_topic(topic)
+            if topic in self.stats:  # sequence numbers of several publishers interleave
+                self.stats[topic].check_seq &= len(infos) <= 1
+                continue
+            if not infos:
+                continue
+            if len(types) != 1:
+                self._skip(topic, f"several types {types}")
+                continue
+            self._subscribe(topic, types[0], [i.qos_profile for i in infos])
+
+    def _skip(self, topic: str, why: str) -> None:
+        self._skipped.add(topic)
+        self.get_logger().warning(f"not recording {topic}: {why}")
+
+    def _subscribe(self, topic: str, msgtype: str, offered: list[Any]) -> None:
+        try:
+            cls = _msg_class(msgtype)
+            self.writer.add_topic(topic, msgtype, qos_yaml(offered))
+        except (ImportError, AttributeError, ValueError, BagError) as exc:
+            self._skip(topic, str(exc))
+            return
+        st = TopicStats(topic, msgtype, _stamped(cls, msgtype), check_seq=len(offered) <= 1)
+        self.stats[topic] = st
+        qos = subscription_qos(offered, self.depth)
+        self._subs.append(self.create_subscription(cls, topic, self._callback(topic, st), qos,
+                                                   raw=True))
+        self.get_logger().info(
+            f"recording {topic} [{msgtype}] ({qos.reliability.name.lower()}, "
+            f"{qos.durability.name.lower()})")
+
+    def _callback(self, topic: str, st: TopicStats) -> Callable[[bytes, dict[str, Any]], None]:
+        write = self.writer.write
+        add = st.add
+        stamped = st.stamped
+
+        def cb(data: bytes, info: dict[str, Any]) -> None:
+            recv = info.get("received_timestamp") or time.time_ns()
+            write(topic, recv, data)
+            self.total += 1
+            stamp = None
+            if stamped and len(data) >= 12 and data[1] == 1:  # little-endian CDR
+                sec, nsec = unpack_from("<iI", data, 4)
+                stamp = sec * 1_000_000_000 + nsec
+            add(info.get("publication_sequence_number"), stamp, recv)
+
+        return cb
+
+    # -- reporting and shutdown ------------------------------------------------------------
+
+    def _report(self) -> None:
+        """One throttled progress line (every ``report_period_s``)."""
+        total, t_prev, gaps_prev = self._reported
+        now = time.monotonic()
+        gaps = sum(s.seq_gaps + s.time_gaps for s in self.stats.values())
+        rate = (self.total - total) / max(now - t_prev, 1e-9)
+        msg = (f"{self.total} messages on {len(self.stats)} topics, {rate:.0f} msg/s, "
+               f"{gaps} gap(s)")
+        if gaps > gaps_prev:
+            self.get_logger().warning(msg + f" (+{gaps - gaps_prev} since the last report)")
+        else:
+            self.get_logger().info(msg)
+        self._reported = (self.total, now, gaps)
+
+    def expired(self) -> bool:
+        """True once ``duration_s`` (> 0) of wall time has passed since the start."""
+        return self.duration_s > 0 and time.monotonic() - self._t_start >= self.duration_s
+
+    def drain(self, executor: Any, since_ns: int) -> None:
+        """Take every message still queued (see the module notes); ``since_ns``: stop time."""
+        active = [s for s in self.stats.values() if s.count and s.last_recv_ns > since_ns - 1e9]
+        end = time.monotonic() + DRAIN_MAX_S
+        quiet_since = time.monotonic()
+        while time.monotonic() < end:
+            before = self.total
+            executor.spin_once(timeout_sec=QUIET_S / 4)
+            now = time.monotonic()
+            if self.total != before:
+                quiet_since = now
+                if all(s.last_recv_ns > since_ns for s in active):
+                    break
+            elif now - quiet_since >= QUIET_S:
+                break
+
+    def missing(self) -> list[str]:
+        """Requested exact topic names (no wildcard) that never had a publisher."""
+        return [p for p in self.patterns if not any(c in p for c in "*?[") and
+                p not in self.stats]
+
+    def finish(self) -> str:
+        """Close the bag (metadata, rename into place) and return the counts/gaps report."""
+        for s in self.stats.values():
+            s.finish()
+        for sub in self._subs:
+            self.destroy_subscription(sub)
+        self._subs.clear()
+        path = self.writer.close()
+        return f"bag: {path}\n" + format_report(list(self.stats.values()), self.missing())
+
+
+class _Stop:
+    """Set by SIGINT/SIGTERM; remembers when (system clock ns, the DDS receive-time clock)."""
+
+    def __init__(self) -> None:
+        self.signum = 0
+        self.at_ns = 0
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        if not self.signum:
+            self.signum, self.at_ns = signum, time.time_ns()
+
+
+def record(out: str, topics: Sequence[str] | None = None, storage: str | None = None,
+           duration_s: float | None = None, args: list[str] | None = None) -> str:
+    """Record until SIGINT, SIGTERM or ``duration_s``; returns the final report text.
+
+    Must run in the main thread (it installs the signal handlers; the previous ones are
+    restored on return). Creates and shuts down its own rclpy context.
+
+    Raises
+    ------
+    BagError
+        The bag cannot be created or finished.
+    """
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    stop = _Stop()
+    old = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    context = rclpy.Context()
+    node: Recorder | None = None
+    try:
+        rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
+        node = Recorder(out, topics, storage, duration_s, context=context)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        while not stop.signum and not node.expired():
+            executor.spin_once(timeout_sec=0.1)
+        node.drain(executor, stop.at_ns or time.time_ns())
+        return node.finish()
+    except BaseException:
+        if node is not None:  # keep what was received: a closed bag, not an aborted one
+            try:
+                node.writer.close()
+            except DcsmsError:
+                node.writer.abort()
+        raise
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def recorder_ready(node: Node, topics: Sequence[str]) -> bool:
+    """True when the recorder subscribes to every topic in ``topics`` (call from a node of the
+    graph, e.g. the lockstep plant, before its first step so no sample is lost)."""
+    return all(any(i.node_name == NODE_NAME for i in node.get_subscriptions_info_by_topic(t))
+               for t in topics)
+
+
+def main(args: list[str] | None = None) -> int:
+    """``ros2 run dcsms_ros recorder --ros-args -p out:=BAG``: exit 0 after a signal."""
+    try:
+        report = record("", args=args if args is not None else sys.argv)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    except DcsmsError as exc:
+        print(f"recorder: error: {exc}", file=sys.stderr)
+        return 2
+    print(report)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
