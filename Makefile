@@ -25,6 +25,8 @@ export ROS_DOMAIN_ID ?= 42
 # No .pyc files or caches written into the shared source tree by the checks below.
 export PYTHONDONTWRITEBYTECODE := 1
 export MPLBACKEND := Agg
+# numba's compiled-function cache (the batch engine fast path) lives in the venv, not the tree.
+export NUMBA_CACHE_DIR ?= $(CURDIR)/$(VENV)/numba-cache
 
 .PHONY: help venv test lint typecheck pytest demo bench colcon-check clean distclean
 
@@ -74,9 +76,9 @@ demo: $(STAMP)
 	$(DCSMS) model tf --mode DFBC+FFC --plot $(DEMO_OUT)
 	$(DCSMS) model sweep --param c1 --factors 1:101:2 --plot $(DEMO_OUT)
 
+BENCH_ARGS ?=
 bench: $(STAMP)
-	@if [ -f bench/run.py ]; then $(PY) bench/run.py; \
-	else echo "bench/run.py does not exist yet"; fi
+	$(PY) bench/run.py $(BENCH_ARGS)
 
 colcon-check: $(STAMP)
 	$(PY) -m pytest -p no:cacheprovider test/test_packaging.py -v

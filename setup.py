@@ -32,6 +32,8 @@ setup(
         ("share/" + package_name + "/launch", sorted(glob("launch/*.py"))),
     ],
     install_requires=["setuptools"],
+    # numba compiles the batch engine's fast path; without it the engine steps the objects
+    extras_require={"fast": ["numba>=0.68"]},
     zip_safe=True,
     maintainer="dcsms_ros maintainers",
     maintainer_email="dcsms@example.com",

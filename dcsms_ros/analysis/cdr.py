@@ -278,13 +278,37 @@ def decode_batch(msgtype: str, buffers: Sequence[bytes | memoryview]) -> Batch:
     if r < lay.size or np.any(lengths != r):
         return _slow(msgtype, buffers)
     rows = np.frombuffer(b"".join(buffers), dtype=np.uint8).reshape(k, r)
+    return _decode_rows(msgtype, rows, lay, frame_id, names)
+
+
+def decode_rows(msgtype: str, rows: np.ndarray) -> Batch:
+    """Decode K same-size messages given as one (K, R) uint8 matrix (no per-message bytes).
+
+    Same result as :func:`decode_batch` over the K rows (including its fallback when a row
+    does not match the first one's layout).
+    """
+    if rows.shape[0] == 0:
+        return _empty(msgtype)
+    try:
+        frame_id, names, counts = _meta(msgtype, rows[0].tobytes())
+        lay = _layout(msgtype, frame_id, names, counts)
+    except (ValueError, UnicodeDecodeError, IndexError):
+        return _slow(msgtype, [row.tobytes() for row in rows])
+    if rows.shape[1] < lay.size:
+        return _slow(msgtype, [row.tobytes() for row in rows])
+    return _decode_rows(msgtype, rows, lay, frame_id, names)
+
+
+def _decode_rows(msgtype: str, rows: np.ndarray, lay: _Layout, frame_id: str,
+                 names: list[str]) -> Batch:
+    k, r = rows.shape
     mask = np.zeros(r, dtype=bool)
     mask[:lay.size] = lay.const
     template = np.zeros(r, dtype=np.uint8)
     template[:lay.size] = np.frombuffer(bytes(lay.buf), np.uint8)
     idx = np.flatnonzero(mask)
     if not np.array_equal(rows[:, idx], np.broadcast_to(template[idx], (k, idx.size))):
-        return _slow(msgtype, buffers)
+        return _slow(msgtype, [row.tobytes() for row in rows])
     cols = {}
     for name, (off, dtype, count) in lay.fields.items():
         size = np.dtype(dtype).itemsize * count
@@ -375,6 +399,6 @@ def _slow(msgtype: str, buffers: Sequence[bytes | memoryview]) -> Batch:
 
 __all__ = [
     "CLOCK", "JOINT_STATE", "STRING", "SUPPORTED", "TWIST_STAMPED", "WRENCH_STAMPED", "Batch",
-    "decode_batch", "decode_string", "encode_clock", "encode_joint_state", "encode_stamped",
+    "decode_batch", "decode_rows", "decode_string", "encode_clock", "encode_joint_state", "encode_stamped",
     "encode_string", "typestore",
 ]

@@ -9,14 +9,17 @@ sequence gap
     The DDS ``publication_sequence_number`` of a publisher jumped by more than 1: messages were
     published but never reached the recorder (dropped by a full queue or a best-effort link).
     A *decrease* means the publisher restarted (new writer, numbering from 1 again) and is
-    counted as a restart, not a gap. The number is per publisher, so the check is switched off
-    for a topic with several publishers (their numbers interleave).
+    counted as a restart, not a gap.
 time gap
     For stamped types, two consecutive header stamps further apart than
     :data:`GAP_FACTOR` times the topic's median stamp period: samples are missing from the
     *data* (the publisher skipped or stalled), whatever the transport did. The median is taken
     over the first :data:`WARMUP` intervals, which are then re-checked; afterwards each interval
     is checked as it arrives, so memory stays constant on long recordings.
+
+Both checks assume one publisher per topic; for a topic with several (``/dcsms/diagnostics``,
+where every node publishes at its own period) sequence numbers and stamps interleave, so both
+are switched off (``checked = False``) and only the count is reported.
 """
 
 from __future__ import annotations
@@ -42,8 +45,8 @@ class TopicStats:
     topic, msgtype : str
     stamped : bool
         True if the type starts with a header stamp (time gaps are checked).
-    check_seq : bool
-        False when several publishers share the topic (sequence numbers interleave).
+    checked : bool
+        False when several publishers share the topic: no sequence or time-gap check.
     count : int
         Messages received (and written).
     seq_gaps, seq_missing, restarts : int
@@ -61,7 +64,7 @@ class TopicStats:
     topic: str
     msgtype: str
     stamped: bool = False
-    check_seq: bool = True
+    checked: bool = True
     count: int = 0
     seq_gaps: int = 0
     seq_missing: int = 0
@@ -83,9 +86,11 @@ class TopicStats:
         if self.count == 1:
             self.first_recv_ns = recv_ns
         self.last_recv_ns = recv_ns
+        if not self.checked:
+            return
         if seq is not None:
             last = self._last_seq
-            if last is not None and self.check_seq:
+            if last is not None:
                 step = seq - last
                 if step > 1:
                     self.seq_gaps += 1
@@ -104,6 +109,15 @@ class TopicStats:
                     self._settle()
             else:
                 self._check(prev, stamp_ns)
+
+    def set_publishers(self, n: int) -> None:
+        """Update the publisher count: checks run only while it is at most 1; they restart
+        from the next message when it drops back to 1 (e.g. a restarted node whose old
+        writer left the graph), so the transition is not counted as a gap."""
+        single = n <= 1
+        if single and not self.checked:
+            self._last_seq = self._last_stamp = None
+        self.checked = single
 
     def _check(self, prev: int, cur: int) -> None:
         dt = cur - prev
@@ -144,10 +158,35 @@ class TopicStats:
         """The counters as a JSON-friendly dict."""
         return {"topic": self.topic, "type": self.msgtype, "count": self.count,
                 "rate_hz": round(self.rate_hz, 3), "seq_gaps": self.seq_gaps,
-                "seq_missing": self.seq_missing, "seq_checked": self.check_seq,
+                "seq_missing": self.seq_missing, "checked": self.checked,
                 "restarts": self.restarts, "time_gaps": self.time_gaps,
                 "backwards": self.backwards, "median_period_ns": self.median_period_ns,
                 "gap_examples_ns": [list(e) for e in self.examples]}
+
+
+@dataclass
+class Recording:
+    """The outcome of one recording: the bag, its topics' counters and unseen topics."""
+
+    path: str
+    topics: list[TopicStats]
+    missing: list[str] = field(default_factory=list)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages written per topic."""
+        return {s.topic: s.count for s in self.topics}
+
+    def text(self) -> str:
+        """The human-readable report (:func:`format_report`)."""
+        return f"bag: {self.path}\n" + format_report(self.topics, self.missing)
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-friendly summary: bag, total, per-topic counters, missing topics."""
+        return {"bag": self.path, "total": sum(s.count for s in self.topics),
+                "gaps": any(not s.ok for s in self.topics),
+                "topics": [s.as_dict() for s in sorted(self.topics, key=lambda s: s.topic)],
+                "missing": list(self.missing)}
 
 
 def format_report(stats: Sequence[TopicStats], missing: Sequence[str] = ()) -> str:
@@ -161,8 +200,8 @@ def format_report(stats: Sequence[TopicStats], missing: Sequence[str] = ()) -> s
     """
     lines = [f"{'topic':<34} {'count':>9} {'rate Hz':>9} {'seq gaps':>9} {'time gaps':>9}"]
     for s in sorted(stats, key=lambda s: s.topic):
-        seq = f"{s.seq_gaps}({s.seq_missing})" if s.check_seq else "n/a"
-        tg = str(s.time_gaps) if s.stamped else "-"
+        seq = f"{s.seq_gaps}({s.seq_missing})" if s.checked else "n/a"
+        tg = (str(s.time_gaps) if s.checked else "n/a") if s.stamped else "-"
         if s.backwards:
             tg += f" {s.backwards}<"
         lines.append(f"{s.topic:<34} {s.count:>9} {s.rate_hz:>9.1f} {seq:>9} {tg:>9}")
@@ -180,4 +219,4 @@ def format_report(stats: Sequence[TopicStats], missing: Sequence[str] = ()) -> s
     return "\n".join(lines)
 
 
-__all__ = ["GAP_FACTOR", "MAX_EXAMPLES", "WARMUP", "TopicStats", "format_report"]
+__all__ = ["GAP_FACTOR", "MAX_EXAMPLES", "WARMUP", "Recording", "TopicStats", "format_report"]

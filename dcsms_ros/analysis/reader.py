@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros.analysis import cdr, mcapchunks
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig, config_from_flat
 from dcsms_ros.errors import BagError, ConfigError
@@ -179,25 +179,19 @@ def _read(reader: Any, path: Path, progress: Progress | None, chunk: int) -> Bag
     sinks = {t: _Sink(c, keep_log=(t == chosen[ref_body].topic))
              for t, c in wanted.items() if c.msgtype != cdr.STRING}
     total = sum(c.msgcount for c in wanted.values())
-    done = 0
     mode_log: list[tuple[int, str]] = []
-    for conn, t_ns, raw in reader.messages(connections=list(wanted.values())):
-        if conn.msgtype == cdr.STRING:
-            text = cdr.decode_string(raw)
-            if conn.topic == topics.MODE:
-                mode_log.append((t_ns, text.strip()))
-            elif data.config_text is None:
-                data.config_text = text
-            continue
-        sink = sinks[conn.topic]
-        sink.add(t_ns, raw)
-        if len(sink.raw) >= chunk:
-            sink.flush()
-            done += chunk
-            if progress is not None:
-                progress(done, total)
-    for sink in sinks.values():
-        sink.flush()
+
+    def text(conn: Any, t_ns: int, raw: bytes | np.ndarray) -> None:
+        value = cdr.decode_string(bytes(raw))
+        if conn.topic == topics.MODE:
+            mode_log.append((t_ns, value.strip()))
+        elif data.config_text is None:
+            data.config_text = value
+
+    if not _read_chunks(reader, wanted, sinks, text, progress, total):
+        mode_log.clear()
+        sinks = {t: _Sink(s.conn, s.keep_log) for t, s in sinks.items()}
+        _read_messages(reader, wanted, sinks, text, progress, total, chunk)
     if progress is not None:
         progress(total, total)
     for body, c in chosen.items():
@@ -210,6 +204,71 @@ def _read(reader: Any, path: Path, progress: Progress | None, chunk: int) -> Bag
             data.warnings.append(f"{s.conn.topic}: {s.fallback} chunk(s) decoded by the slow "
                                  "path (layout changed between messages)")
     return data
+
+
+def _mcap_files(reader: Any) -> list[Path] | None:
+    """The storage files when every one is MCAP (rosbags reader internals, checked)."""
+    storages = getattr(reader.storage, "storages", [reader.storage])
+    paths = [getattr(s, "path", None) for s in storages]
+    if not paths or not all(isinstance(p, Path) and p.suffix == ".mcap" for p in paths):
+        return None
+    return [p for p in paths if isinstance(p, Path)]
+
+
+def _read_chunks(reader: Any, wanted: dict[str, Any], sinks: dict[str, _Sink],
+                 text: Callable[[Any, int, Any], None], progress: Progress | None,
+                 total: int) -> bool:
+    """Fast path: whole MCAP chunks as byte matrices (:mod:`.mcapchunks`). False when the
+    files need the rosbags reader (not MCAP, unindexed, unknown compression, or a topic whose
+    messages are out of log-time order across chunks); nothing is kept from a False run."""
+    files = _mcap_files(reader)
+    if files is None:
+        return False
+    done = 0
+
+    def tick(n: int) -> None:
+        nonlocal done
+        done += n
+        if progress is not None:
+            progress(done, total)
+
+    try:
+        for f in files:
+            chans, chunks = mcapchunks.summary(f)
+            ids = {cid: wanted[t] for cid, (t, schema) in chans.items()
+                   if t in wanted and schema == wanted[t].msgtype}
+            for block in mcapchunks.iter_blocks(f, set(ids), chunks, tick):
+                conn = ids[block.channel]
+                if conn.msgtype != cdr.STRING:
+                    if not sinks[conn.topic].add_block(block):
+                        return False
+                    continue
+                payloads: Any = block.rows if block.rows is not None else block.buffers
+                for t_ns, raw in zip(block.log_ns.tolist(), payloads, strict=True):
+                    text(conn, t_ns, raw)
+    except mcapchunks.Unsupported:
+        return False
+    return True
+
+
+def _read_messages(reader: Any, wanted: dict[str, Any], sinks: dict[str, _Sink],
+                   text: Callable[[Any, int, Any], None], progress: Progress | None,
+                   total: int, chunk: int) -> None:
+    """rosbags path: message by message (SQLite 3 bags, unindexed MCAP)."""
+    done = 0
+    for conn, t_ns, raw in reader.messages(connections=list(wanted.values())):
+        if conn.msgtype == cdr.STRING:
+            text(conn, t_ns, raw)
+            continue
+        sink = sinks[conn.topic]
+        sink.add(t_ns, raw)
+        if len(sink.raw) >= chunk:
+            sink.flush()
+            done += chunk
+            if progress is not None:
+                progress(done, total)
+    for sink in sinks.values():
+        sink.flush()
 
 
 class _Sink:
@@ -228,16 +287,36 @@ class _Sink:
         self.columns: tuple[str, ...] = ()
         self.frame_id = ""
         self.fallback = 0
+        self.last_log = -(2**63)
 
     def add(self, t_ns: int, raw: bytes) -> None:
         self.raw.append(raw)
         if self.keep_log:
             self.log.append(t_ns)
 
+    def add_block(self, block: mcapchunks.Block) -> bool:
+        """Decode one chunk's messages of this topic; False if they arrive out of log-time
+        order relative to earlier chunks (rosbags would interleave them: use its path)."""
+        if len(block) == 0:
+            return True
+        if int(block.log_ns[0]) < self.last_log:
+            return False
+        self.last_log = int(block.log_ns[-1])
+        if block.rows is not None:
+            batch = cdr.decode_rows(self.conn.msgtype, block.rows)
+        else:
+            batch = cdr.decode_batch(self.conn.msgtype, block.buffers or [])
+        self._store(batch, block.log_ns)
+        return True
+
     def flush(self) -> None:
         if not self.raw:
             return
-        batch = cdr.decode_batch(self.conn.msgtype, self.raw)
+        self._store(cdr.decode_batch(self.conn.msgtype, self.raw), self.log)
+        self.raw.clear()
+        self.log.clear()
+
+    def _store(self, batch: cdr.Batch, log: Any) -> None:
         self.fallback += not batch.fast
         if self.conn.msgtype == cdr.TWIST_STAMPED:
             vals = batch.fields["twist"][:, KEPT_AXES]
@@ -246,7 +325,7 @@ class _Sink:
             vals = batch.fields["effort"]
             self.columns = batch.names
         self.frame_id = batch.frame_id
-        k = len(self.raw)
+        k = batch.stamp_ns.size
         self._ensure(self.k + k, vals.shape[1])
         assert self.values is not None
         if vals.shape[1] != self.values.shape[1]:
@@ -255,10 +334,8 @@ class _Sink:
         self.stamp[self.k:self.k + k] = batch.stamp_ns
         self.values[self.k:self.k + k] = vals
         if self.log_ns is not None:
-            self.log_ns[self.k:self.k + k] = self.log
+            self.log_ns[self.k:self.k + k] = log
         self.k += k
-        self.raw.clear()
-        self.log.clear()
 
     def _ensure(self, n: int, width: int) -> None:
         if self.values is None:

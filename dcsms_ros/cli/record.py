@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from dcsms_ros.cli.common import print_json
 from dcsms_ros.errors import BagError, DcsmsError
 
 STORAGES = ("mcap", "sqlite3")
@@ -34,6 +35,10 @@ def register(subparsers: Any) -> None:
                    help="rosbag2 storage plugin (default: mcap)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="stop after S seconds of wall time (default: until Ctrl-C/SIGTERM)")
+    p.add_argument("--queue-depth", type=int, default=None, metavar="N",
+                   help="reader history per topic (default 4000: 2 s at 2 kHz)")
+    p.add_argument("--json", action="store_true",
+                   help="print the counts and gaps as JSON on stdout")
     p.set_defaults(func=run)
 
 
@@ -61,8 +66,14 @@ def run(args: argparse.Namespace) -> int:
         raise DcsmsError(f"--duration {args.duration}: must be > 0")
     from dcsms_ros.nodes.recorder import record  # rclpy: imported only when recording
 
-    report = record(str(args.out), args.topics, args.storage, args.duration, args=[])
-    print(report, flush=True)
+    if args.queue_depth is not None and args.queue_depth < 1:
+        raise DcsmsError(f"--queue-depth {args.queue_depth}: must be >= 1")
+    rec = record(str(args.out), args.topics, args.storage, args.duration, args=[],
+                 queue_depth=args.queue_depth)
+    if args.json:
+        print_json(rec.as_dict())
+    else:
+        print(rec.text(), flush=True)
     return 0
 
 

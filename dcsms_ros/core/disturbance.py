@@ -203,5 +203,31 @@ class Disturbances:
         self.k += 1
         return g, w
 
+    def block(self, n: int) -> tuple[Array, Array]:
+        """The next ``n`` samples at once, the same values as ``n`` calls of :meth:`next`.
+
+        Returns
+        -------
+        ground_twist : ndarray, shape (n, dof)
+        table_wrench : ndarray, shape (n, N, dof)
+        """
+        g = np.zeros((n, self.dof))
+        if self._ground is not None:
+            size = self._ground.shape[0]
+            j = self.k + np.arange(n)
+            if not self.ground_exhausted and np.any((j >= size) & (j % size == 0)):
+                self.ground_exhausted = True
+                warnings.warn("ground replay ended; looping from its start", RuntimeWarning,
+                              stacklevel=2)
+            g[:] = self._ground[j % size]
+        else:
+            assert self._gnoise is not None
+            g[:, :self._ntrans] = self._gnoise.block(n)
+        w = np.zeros((n, self.num_stages, self.dof))
+        w[:, :, :self._ntrans] = self._fnoise.block(n).reshape(n, self.num_stages,
+                                                                self._ntrans)
+        self.k += n
+        return g, w
+
 
 __all__ = ["BLOCK", "BandNoise", "Disturbances", "band_sos", "noise_gain"]

@@ -157,6 +157,24 @@ class GeophoneArray:
             self._k += 1
         return y
 
+    def noise_block(self, n: int) -> Array:
+        """The self-noise the next ``n`` calls of :meth:`step` would add, shape (n, n_ch) m/s,
+        consuming the stream exactly as they would (all zeros and no draw when the noise is 0)."""
+        out = np.zeros((n, len(self.channels)))
+        if self.noise_std <= 0.0:
+            return out
+        i = 0
+        while i < n:
+            if self._k == NOISE_BLOCK:
+                self._noise = self._rng.standard_normal((NOISE_BLOCK, len(self.channels)))
+                self._noise *= self.noise_std
+                self._k = 0
+            m = min(n - i, NOISE_BLOCK - self._k)
+            out[i:i + m] = self._noise[self._k:self._k + m]
+            self._k += m
+            i += m
+        return out
+
 
 __all__ = [
     "NOISE_BLOCK",

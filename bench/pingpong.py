@@ -1,0 +1,139 @@
+"""rclpy ping-pong bound: two processes echoing a geometry_msgs/TwistStamped.
+
+The pinger publishes on ``/bench/ping``, the echo process (``python bench/pingpong.py --echo``)
+republishes each message on ``/bench/pong``, and the pinger sends the next one only when the
+previous came back: round trips per second is the ceiling of any lockstep graph in which one
+step needs one message exchange between two processes. The pinger spins a
+SingleThreadedExecutor; the echo side that one or (``--executor events``) rclpy's
+EventsExecutor. Reliable QoS, depth 1. Independent of the dcsms nodes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from typing import Any
+
+PING, PONG = "/bench/ping", "/bench/pong"
+
+
+def _env(domain: int) -> dict[str, str]:
+    env = dict(os.environ)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env["ROS_DOMAIN_ID"] = str(domain)
+    return env
+
+
+def _executor(kind: str) -> Any:
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor()
+    from rclpy.executors import SingleThreadedExecutor
+
+    return SingleThreadedExecutor()
+
+
+def echo(executor: str) -> None:
+    """Echo process: republish every ping as a pong until killed."""
+    import rclpy
+    from geometry_msgs.msg import TwistStamped
+
+    rclpy.init()
+    node = rclpy.create_node("bench_echo")
+    pub = node.create_publisher(TwistStamped, PONG, 1)
+    node.create_subscription(TwistStamped, PING, pub.publish, 1)
+    ex = _executor(executor)
+    ex.add_node(node)
+    print("ready", flush=True)
+    try:
+        ex.spin()
+    except (KeyboardInterrupt, Exception):  # noqa: BLE001 - shutdown on SIGTERM/SIGINT
+        pass
+
+
+def measure(duration_s: float = 5.0, domain: int = 87, executor: str = "single",
+            timeout_s: float = 30.0) -> dict[str, Any]:
+    """Run the echo process and ping for ``duration_s``; returns round trips per second.
+
+    Returns
+    -------
+    dict
+        ``round_trips_per_s``, ``rtt_us_p50``, ``rtt_us_p99``, ``round_trips``, ``executor``.
+    """
+    env = _env(domain)
+    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID")})
+    proc = subprocess.Popen([sys.executable, __file__, "--echo", "--executor", executor],
+                            env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        proc.stdout.readline()
+        return _ping(duration_s, executor, timeout_s)
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def _ping(duration_s: float, executor: str, timeout_s: float) -> dict[str, Any]:
+    import numpy as np
+    import rclpy
+    from geometry_msgs.msg import TwistStamped
+
+    rclpy.init()
+    try:
+        node = rclpy.create_node("bench_ping")
+        pub = node.create_publisher(TwistStamped, PING, 1)
+        got: list[int] = []
+        node.create_subscription(TwistStamped, PONG, lambda m: got.append(1), 1)
+        ex = _executor("single")  # EventsExecutor.spin_once does not return per callback
+        ex.add_node(node)
+        msg = TwistStamped()
+        deadline = time.monotonic() + timeout_s
+        while pub.get_subscription_count() == 0 or node.count_publishers(PONG) == 0:
+            ex.spin_once(timeout_sec=0.05)
+            if time.monotonic() > deadline:
+                raise TimeoutError("echo process not discovered")
+        # warm-up: the first exchanges also complete discovery of the pong subscription
+        while len(got) < 20 and time.monotonic() < deadline:
+            pub.publish(msg)
+            ex.spin_once(timeout_sec=0.1)
+        rtts = []
+        end = time.monotonic() + duration_s
+        while time.monotonic() < end:
+            got.clear()
+            t0 = time.perf_counter()
+            pub.publish(msg)
+            while not got:
+                ex.spin_once(timeout_sec=0.5)
+                if time.monotonic() > end + 1.0:
+                    break
+            rtts.append(time.perf_counter() - t0)
+        r = np.asarray(rtts)
+        return {"round_trips_per_s": float(r.size / r.sum()), "round_trips": int(r.size),
+                "rtt_us_p50": float(np.percentile(r, 50) * 1e6),
+                "rtt_us_p99": float(np.percentile(r, 99) * 1e6), "executor": executor}
+    finally:
+        rclpy.try_shutdown()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--echo", action="store_true", help="run the echo side")
+    ap.add_argument("--executor", choices=("single", "events"), default="single")
+    ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--domain", type=int, default=87)
+    a = ap.parse_args()
+    if a.echo:
+        echo(a.executor)
+    else:
+        print(measure(a.seconds, a.domain, a.executor))
+
+
+if __name__ == "__main__":
+    main()

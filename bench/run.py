@@ -1,0 +1,168 @@
+"""dcsms_ros benchmark harness: one table, every figure next to its same-run baseline.
+
+``python bench/run.py`` (``make bench``) runs every registered benchmark and writes
+``bench/results.json`` (machine info + rows); ``--smoke`` runs tiny sizes in a few seconds
+(CI checks only that it runs and writes well-formed JSON, never its timings).
+
+A benchmark is a function ``run(smoke, tmp) -> list[row]`` registered in :data:`REGISTRY`;
+a row is a dict with ``name``, ``value``, ``unit``, ``baseline_name``, ``baseline`` and
+optionally ``target`` (value >= target), ``target_ratio`` (value / baseline >= it),
+``target_max`` (value <= it) and ``note``. The graph figures (lockstep, real time) plug in the
+same way from ``bench/graph_bench.py`` once the node graph exists.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib.util
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+Row = dict[str, Any]
+
+
+def _engine(smoke: bool, tmp: Path) -> list[Row]:
+    import engine_bench
+
+    return engine_bench.run(smoke)
+
+
+def _bags(smoke: bool, tmp: Path) -> list[Row]:
+    import bag_bench
+
+    return bag_bench.run(smoke, tmp)
+
+
+def _pingpong(smoke: bool, tmp: Path) -> list[Row]:
+    if importlib.util.find_spec("rclpy") is None:
+        return [{"name": "rclpy ping-pong", "value": None, "unit": "round trips/s",
+                 "note": "rclpy not importable: skipped"}]
+    import pingpong
+
+    domain = int(os.environ.get("DCSMS_BENCH_DOMAIN", 100 + os.getpid() % 100))
+    r = pingpong.measure(1.0 if smoke else 10.0, domain)
+    return [{"name": "rclpy ping-pong bound, TwistStamped, 2 processes",
+             "value": r["round_trips_per_s"], "unit": "round trips/s",
+             "note": f"RTT p50 {r['rtt_us_p50']:.0f} us, p99 {r['rtt_us_p99']:.0f} us, "
+                     f"{r['round_trips']} round trips"}]
+
+
+def _graph(smoke: bool, tmp: Path) -> list[Row]:
+    if not (HERE / "graph_bench.py").exists():
+        return [{"name": "lockstep / real-time graph", "value": None, "unit": "",
+                 "note": "bench/graph_bench.py not written yet (needs the node graph)"}]
+    import graph_bench  # type: ignore[import-not-found]
+
+    return list(graph_bench.run(smoke, tmp))
+
+
+#: name -> benchmark; run in this order.
+REGISTRY: dict[str, Callable[[bool, Path], list[Row]]] = {
+    "engine": _engine, "bags": _bags, "pingpong": _pingpong, "graph": _graph,
+}
+
+
+def machine() -> dict[str, Any]:
+    """CPU model, cores, Python and library versions, date."""
+    import numpy
+
+    cpu = platform.processor() or ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    info = {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
+            "numpy": numpy.__version__, "platform": platform.platform(),
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    for mod in ("numba", "scipy", "rosbags"):
+        try:
+            info[mod] = __import__(mod).__version__
+        except ImportError:
+            info[mod] = None
+    try:
+        info["load_avg"] = os.getloadavg()
+    except OSError:
+        pass
+    return info
+
+
+def _verdict(r: Row) -> str:
+    v, b = r.get("value"), r.get("baseline")
+    if v is None:
+        return "-"
+    ok = []
+    if r.get("target") is not None:
+        ok.append(v >= r["target"])
+    if r.get("target_ratio") is not None and b:
+        ok.append(v / b >= r["target_ratio"])
+    if r.get("target_max") is not None:
+        ok.append(v <= r["target_max"])
+    return "-" if not ok else ("met" if all(ok) else "NOT met")
+
+
+def _fmt(x: Any) -> str:
+    if x is None:
+        return "-"
+    return f"{x:,.0f}" if abs(x) >= 100 else f"{x:.3g}"
+
+
+def table(rows: list[Row]) -> str:
+    """The results as a Markdown table."""
+    out = ["| figure | value | unit | baseline (same run) | ratio | target |",
+           "|---|---:|---|---|---:|---|"]
+    for r in rows:
+        b = r.get("baseline")
+        base = f"{r.get('baseline_name', '')}: {_fmt(b)}" if b is not None else "-"
+        ratio = f"{r['value'] / b:.1f}x" if r.get("value") and b else "-"
+        out.append(f"| {r['name']} | {_fmt(r.get('value'))} | {r.get('unit', '')} | {base} | "
+                   f"{ratio} | {_verdict(r)} |")
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="dcsms_ros benchmarks")
+    ap.add_argument("--smoke", action="store_true", help="tiny sizes, a few seconds")
+    ap.add_argument("--only", nargs="*", choices=sorted(REGISTRY), help="run only these")
+    ap.add_argument("--out", type=Path, default=HERE / "results.json")
+    a = ap.parse_args(argv)
+    rows: list[Row] = []
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="dcsms-bench-") as tmp:
+        for name, fn in REGISTRY.items():
+            if a.only and name not in a.only:
+                continue
+            t = time.perf_counter()
+            for r in fn(a.smoke, Path(tmp)):
+                r["bench"] = name
+                r["verdict"] = _verdict(r)
+                rows.append(r)
+            print(f"[{name}: {time.perf_counter() - t:.1f} s]", file=sys.stderr, flush=True)
+    result = {"machine": machine(), "smoke": a.smoke, "wall_s": time.perf_counter() - t0,
+              "rows": rows}
+    a.out.write_text(json.dumps(result, indent=1) + "\n")
+    m = result["machine"]
+    print(f"{m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m['numpy']}, "
+          f"numba {m['numba']}, {m['date']}")
+    print(table(rows))
+    print(f"wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,93 @@
+"""``dcsms mode [NAME]``: switch the running graph's control mode, or show the current one.
+
+``NAME`` is any spelling :func:`~dcsms_ros.core.modes.parse_mode` accepts (``DFBC+FFC``,
+``dfbc_ffc``, ``fbc-ffc`` ...); an unknown name exits with status 2 and lists the valid ones.
+The switch is the ``/dcsms/set_mode/<mode>`` service of the ``mode_switch`` node; its answer is
+printed. Exit status: 0 switched (or shown), 1 refused, rolled back or no graph answering.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from typing import Any
+
+from dcsms_ros.core import topics
+from dcsms_ros.core.modes import parse_mode
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``mode`` sub-command."""
+    p = subparsers.add_parser(
+        "mode", help="switch the running graph's control mode",
+        description="Switch the running graph (dcsms up) to a control mode atomically: every "
+        "controller involved confirms, or all are rolled back. Without NAME, print the current "
+        "mode.")
+    p.add_argument("name", nargs="?", default=None, metavar="NAME",
+                   help="Passive, FBC, FFC, FBC+FFC, DFBC or DFBC+FFC (any case)")
+    p.add_argument("--reset-trip", action="store_true",
+                   help="clear a latched instability trip (before or instead of switching)")
+    p.add_argument("--timeout", type=float, default=5.0, metavar="S",
+                   help="seconds to wait for the graph to answer (default 5)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Handler: call the service(s) and print the answer."""
+    mode = parse_mode(args.name) if args.name is not None else None  # ModeError -> exit 2
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    import rclpy  # imported late: `dcsms mode BAD` must fail fast, without ROS
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    from std_msgs.msg import String
+    from std_srvs.srv import Trigger
+
+    from dcsms_ros.nodes import qos
+
+    ctx = Context()
+    rclpy.init(args=[], context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node(f"dcsms_mode_{os.getpid()}", context=ctx)
+    try:
+        calls = []
+        if args.reset_trip:
+            calls.append(topics.RESET_TRIP)
+        if mode is not None:
+            calls.append(topics.set_mode_service(mode.value))
+        for name in calls:
+            client = node.create_client(Trigger, name)
+            if not client.wait_for_service(timeout_sec=args.timeout):
+                domain = os.environ.get("ROS_DOMAIN_ID", "0")
+                print(f"dcsms: error: service {name} not available after {args.timeout:g} s; "
+                      f"is `dcsms up` running in ROS_DOMAIN_ID={domain}?", file=sys.stderr)
+                return 1
+            future = client.call_async(Trigger.Request())
+            rclpy.spin_until_future_complete(node, future, timeout_sec=args.timeout)
+            result = future.result()
+            if result is None:
+                print(f"dcsms: error: no answer from {name} within {args.timeout:g} s",
+                      file=sys.stderr)
+                return 1
+            print(result.message, flush=True)
+            if not result.success:
+                return 1
+        if not calls:
+            got: list[str] = []
+            node.create_subscription(String, topics.MODE, lambda m: got.append(m.data),
+                                     qos.latched())
+            deadline = time.monotonic() + args.timeout
+            while not got and time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            if not got:
+                print(f"dcsms: error: no mode on {topics.MODE} within {args.timeout:g} s; is "
+                      f"`dcsms up` running?", file=sys.stderr)
+                return 1
+            print(got[-1])
+        return 0
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+__all__ = ["register", "run"]

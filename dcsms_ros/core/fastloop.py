@@ -1,0 +1,173 @@
+"""The per-sample closed loop of :func:`.engine.simulate` fused into one numba-compiled loop.
+
+:func:`run_block` executes, for samples ``k0 .. k1-1``, exactly the floating-point operations of
+``PlantSimulator.measure`` -> ``Decoupler.step`` -> ``FeedbackLoop/FeedforwardLoop.step`` ->
+``PlantSimulator.advance``, in the same order, over arrays taken from those very objects (see
+:mod:`.fastsim`). Matrix-vector products use ``np.dot`` as the objects do: numba calls the same
+BLAS ``gemv`` kernel as numpy, element-wise arithmetic is not contracted (no ``fastmath``), so
+the result is bit-identical to the object path on the machines we tested.
+
+Imported only when numba is available (``fastsim.available()``); the core never requires it.
+"""
+
+from __future__ import annotations
+
+import numba  # type: ignore[import-untyped]
+import numpy as np
+
+_JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
+
+
+@numba.njit(**_JIT)
+def _sos(b0, b1, b2, a1, a2, z, u):  # type: ignore[no-untyped-def]
+    """SosFilter.step in place on ``u`` (channels,): transposed direct form II per section."""
+    for i in range(b0.shape[0]):
+        for c in range(u.shape[0]):
+            x = u[c]
+            y = b0[i, c] * x + z[i, 0, c]
+            z[i, 0, c] = b1[i, c] * x - a1[i, c] * y + z[i, 1, c]
+            z[i, 1, c] = b2[i, c] * x - a2[i, c] * y
+            u[c] = y
+
+
+@numba.njit(**_JIT)
+def _clip(f, limit):  # type: ignore[no-untyped-def]
+    """Allocator.clip in place; returns the number of clipped actuators."""
+    n = 0
+    for j in range(f.shape[0]):
+        if abs(f[j]) > limit:
+            n += 1
+    if n:
+        for j in range(f.shape[0]):
+            if f[j] > limit:
+                f[j] = limit
+            elif f[j] < -limit:
+                f[j] = -limit
+    return n
+
+
+@numba.njit(**_JIT)
+def _finite(v):  # type: ignore[no-untyped-def]
+    for j in range(v.shape[0]):
+        if not np.isfinite(v[j]):
+            return False
+    return True
+
+
+@numba.njit(**_JIT)
+def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, noise,
+              out):  # type: ignore[no-untyped-def]
+    """Run samples ``k0 <= k < k1``; returns ``k1``, or the first sample with a non-finite
+    value (the caller then reruns the object path, which owns the fault handling).
+
+    Parameters (tuples of arrays, states updated in place; built by :mod:`.fastsim`)
+    ----------
+    plant : (A, B, C, chan, x, y, ax, bu, u, truthv, chv)
+    geo, ext : (b0, b1, b2, a1, a2, z) of the geophone and extension filters
+    dec : (starts (nb+1,), pinvs tuple, buffers tuple, vext)
+    ctl : (b0, b1, b2, a1, a2, z, saved, axes, pinv, bmat, ubuf, fbuf: tuples per controller;
+           limit (nc,), body (nc,), stage (nc,), wbuf (nc, dof))
+    fade : (n (nc,), k (nc,), on (nc,)) integer arrays
+    alloc : (pinvs tuple, limits (N,), forces tuple, totals (N, dof), counters (2,))
+    ground, dist, noise : (m, dof), (m, N*dof), (m, n_ch) rows of samples k0..k1-1
+    out : (truth (K, N+1, dof), raw (K, n_ch), vel (K, N+1, dof), wrench (nc, K, dof),
+           applied (K, n_act))
+    """
+    a_m, b_m, c_m, chan, x, y, ax, bu, u, truthv, chv = plant
+    gb0, gb1, gb2, ga1, ga2, gz = geo
+    eb0, eb1, eb2, ea1, ea2, ez = ext
+    starts, dpinv, dbuf, vext = dec
+    (cb0, cb1, cb2, ca1, ca2, cz, csaved, caxes, cpinv, cbm, cub, cfb,
+     climit, cbody, cstage, wbuf) = ctl
+    fn, fk, fon = fade
+    apinv, alimit, aforce, totals, counters = alloc
+    o_truth, o_raw, o_vel, o_wrench, o_applied = out
+    dof = ground.shape[1]
+    nst = totals.shape[0]
+    nch = chv.shape[0]
+    has_noise = noise.shape[1] == nch
+    nc = climit.shape[0]
+    for k in range(k0, k1):
+        r = k - k0
+        # --- PlantSimulator.truth / measure
+        np.dot(c_m, x, y)
+        for j in range(dof):
+            truthv[j] = ground[r, j]
+        for j in range(y.shape[0]):
+            truthv[dof + j] = y[j]
+        for b in range(nst + 1):
+            for j in range(dof):
+                o_truth[k, b, j] = truthv[b * dof + j]
+        np.dot(chan, truthv, chv)
+        _sos(gb0, gb1, gb2, ga1, ga2, gz, chv)
+        if has_noise:
+            for j in range(nch):
+                chv[j] += noise[r, j]
+        o_raw[k] = chv
+        if not _finite(chv):
+            return k
+        # --- Decoupler.step
+        vext[:] = chv
+        _sos(eb0, eb1, eb2, ea1, ea2, ez, vext)
+        for b in range(starts.shape[0] - 1):
+            buf = dbuf[b]
+            for j in range(buf.shape[0]):
+                buf[j] = vext[starts[b] + j]
+            np.dot(dpinv[b], buf, o_vel[k, b])
+        # --- controllers (Fader, filters, allocation, anti-windup)
+        for c in range(nc):
+            if fn[c] == 0:
+                g = 1.0 if fon[c] else 0.0
+            else:
+                if fon[c] and fk[c] < fn[c]:
+                    fk[c] += 1
+                elif not fon[c] and fk[c] > 0:
+                    fk[c] -= 1
+                g = fk[c] / fn[c]
+            w = wbuf[c]
+            w[:] = 0.0
+            xin = o_vel[k, cbody[c]]
+            if not _finite(xin):
+                return k
+            z = cz[c]
+            csaved[c][:] = z
+            ub = cub[c]
+            axes = caxes[c]
+            for j in range(axes.shape[0]):
+                ub[j] = xin[axes[j]]
+            _sos(cb0[c], cb1[c], cb2[c], ca1[c], ca2[c], z, ub)
+            for j in range(axes.shape[0]):
+                w[axes[j]] = -g * ub[j]
+            if g != 0.0:
+                f = cfb[c]
+                np.dot(cpinv[c], w, f)
+                if _clip(f, climit[c]):
+                    z[:] = csaved[c]
+                    np.dot(cbm[c], f, w)
+            o_wrench[c, k] = w
+            if not _finite(w):
+                return k
+        # --- PlantSimulator.advance
+        totals[:] = 0.0
+        for c in range(nc):
+            for j in range(dof):
+                totals[cstage[c], j] += wbuf[c, j]
+        for j in range(dof):
+            u[j] = ground[r, j]
+        pos = dof
+        for i in range(nst):
+            f = aforce[i]
+            np.dot(apinv[i], totals[i], f)
+            counters[1] += _clip(f, alimit[i])
+            for j in range(f.shape[0]):
+                u[pos + j] = f[j]
+            pos += f.shape[0]
+        for j in range(pos - dof):
+            o_applied[k, j] = u[dof + j]
+        for j in range(dist.shape[1]):
+            u[pos + j] = dist[r, j]
+        np.dot(a_m, x, ax)
+        np.dot(b_m, u, bu)
+        for j in range(x.shape[0]):
+            x[j] = ax[j] + bu[j]
+    return k1

@@ -1,0 +1,165 @@
+"""Fast path of the batch engine: the core step objects' arrays driven by :mod:`.fastloop`.
+
+The objects are built exactly as for the object path (:func:`.engine.simulate`); this module
+only reads their coefficient matrices and filter states (the states are shared and advanced in
+place) and feeds the compiled loop the disturbances, replayed ground and geophone noise that the
+objects themselves draw, block by block (:meth:`.Disturbances.block`,
+:meth:`.GeophoneArray.noise_block`). Mode switches and progress calls split the run into
+blocks; between blocks only the fader targets change.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dcsms_ros.core.decoupling import Decoupler
+from dcsms_ros.core.modes import Mode, controller_stage, enabled_controllers
+from dcsms_ros.core.simulator import PlantSimulator
+
+Array = NDArray[np.float64]
+Loop = Any  # FeedbackLoop | FeedforwardLoop
+
+#: Samples per compiled call when nothing else splits the run (bounds the noise buffers).
+BLOCK = 1 << 16
+
+
+def available() -> bool:
+    """True when numba can be imported (the fast path is optional: the nodes never need it)."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def _c(a: Any, dtype: Any = np.float64) -> Any:
+    return np.ascontiguousarray(a, dtype=dtype)
+
+
+def _mat(a: Any) -> Any:
+    """A matrix in the memory layout the object multiplies with (numpy picks the BLAS ``gemv``
+    variant from it, so keeping C or Fortran order keeps the products bit-identical)."""
+    a = np.asarray(a, dtype=np.float64)
+    return a if a.flags.c_contiguous or a.flags.f_contiguous else np.ascontiguousarray(a)
+
+
+def _sos_arrays(f: Any) -> tuple[Array, ...]:
+    """(b0, b1, b2, a1, a2, z) of a :class:`.SosFilter`; ``z`` is its own state array."""
+    return (f._b0, f._b1, f._b2, f._a1, f._a2, f._z)
+
+
+class FastLoop:
+    """The arrays of one closed loop (plant simulator, decoupler, controllers) for the kernel.
+
+    Parameters
+    ----------
+    sim, dec : PlantSimulator, Decoupler
+        Freshly built objects (sample 0 drawn, filters at rest); their states advance in place.
+    ctrls : mapping of controller id to loop
+        In the order the engine steps them.
+    body : mapping of controller id to int
+        Index of the body whose twist each controller reads.
+    out : tuple of ndarray
+        (truth, raw, velocity, wrench (nc, K, dof), applied) the kernel fills.
+    """
+
+    def __init__(self, sim: PlantSimulator, dec: Decoupler, ctrls: Mapping[str, Loop],
+                 body: Mapping[str, int], out: tuple[Array, ...]) -> None:
+        self.sim, self.ids = sim, list(ctrls)
+        p = sim.plant
+        n_out, nx = p._c.shape
+        self.plant = (p._a, p._b, p._c, _mat(sim._chan), p.x, np.zeros(n_out), np.zeros(nx),
+                      np.zeros(nx), np.zeros_like(sim._u), np.zeros(sim._chan.shape[1]),
+                      np.zeros(sim._chan.shape[0]))
+        self.geo = _sos_arrays(sim.geophones._filter)
+        self.ext = _sos_arrays(dec._ext)
+        starts = [sl.start for sl, _ in dec._blocks] + [dec._blocks[-1][0].stop]
+        self.dec = (np.asarray(starts, np.int64), tuple(_mat(m) for _, m in dec._blocks),
+                    tuple(np.zeros(sl.stop - sl.start) for sl, _ in dec._blocks),
+                    np.zeros(sim._chan.shape[0]))
+        loops = list(ctrls.values())
+        filt = [_sos_arrays(c._filter) for c in loops]
+        self.ctl = (*(tuple(f[j] for f in filt) for j in range(6)),
+                    tuple(c._saved for c in loops),
+                    tuple(_c(c._axes, np.int64) for c in loops),
+                    tuple(_mat(c.allocator.pinv) for c in loops),
+                    tuple(_mat(c.allocator.b) for c in loops),
+                    tuple(np.zeros(len(c._axes)) for c in loops),
+                    tuple(np.zeros(c.allocator.n_act) for c in loops),
+                    np.array([c.allocator.limit for c in loops]),
+                    np.array([body[cid] for cid in ctrls], np.int64),
+                    np.array([controller_stage(cid) - 1 for cid in ctrls], np.int64),
+                    np.zeros((len(loops), sim.dof)))
+        self.fade = (np.array([c.fader._n for c in loops], np.int64),
+                     np.array([c.fader._k for c in loops], np.int64),
+                     np.array([c.fader._on for c in loops], np.int64))
+        self.counters = np.zeros(2, np.int64)
+        self.alloc = (tuple(_mat(a.pinv) for a in sim.allocators),
+                      np.array([a.limit for a in sim.allocators]),
+                      tuple(np.zeros(a.n_act) for a in sim.allocators),
+                      np.zeros((len(sim.allocators), sim.dof)), self.counters)
+        self.out = out
+        self._first = True
+
+    def set_targets(self, on: frozenset[str]) -> None:
+        """Fader targets of every controller (a mode switch)."""
+        self.fade[2][:] = [cid in on for cid in self.ids]
+
+    def _inputs(self, m: int) -> tuple[Array, Array, Array]:
+        sim = self.sim
+        if self._first:  # sample 0 was drawn when the simulator was built
+            self._first = False
+            g, w = sim.disturbances.block(m - 1)
+            g = np.vstack([sim._ground[None, :], g])
+            w = np.concatenate([sim._dist[None], w])
+        else:
+            g, w = sim.disturbances.block(m)
+        noise = sim.geophones.noise_block(m)
+        if sim.geophones.noise_std <= 0.0:
+            noise = np.zeros((m, 0))
+        return g, _c(w.reshape(m, -1)), noise
+
+    def run(self, k0: int, k1: int) -> bool:
+        """Samples ``k0 .. k1-1``; False if a non-finite value appeared (results invalid)."""
+        from dcsms_ros.core.fastloop import run_block
+
+        g, w, noise = self._inputs(k1 - k0)
+        k = run_block(k0, k1, self.plant, self.geo, self.ext, self.dec, self.ctl, self.fade,
+                      self.alloc, g, w, noise, self.out)
+        return bool(k == k1)
+
+    def finish(self, steps: int) -> None:
+        """Leave the objects as the object path does: draw sample ``steps``, copy counters."""
+        self.sim.disturbances.block(1)
+        self.sim.k = steps
+        self.sim.saturations = int(self.counters[1])
+
+
+def run_fast(loop: FastLoop, steps: int, events: Sequence[tuple[int, Mode]], num_stages: int,
+             modes: list[tuple[int, str]],
+             progress: Callable[[float], None] | None = None) -> bool:
+    """Drive ``loop`` over ``steps`` samples with mode ``events`` as the object path would.
+
+    Appends the applied switches to ``modes``; returns False if the run hit a non-finite value
+    (the caller falls back to the object path, which handles and counts faults).
+    """
+    every = max(steps // 100, 1)
+    ticks = set(range(1, steps + 1, every)) if progress is not None else set()
+    bounds = sorted({0, steps, *range(0, steps, BLOCK), *ticks,
+                     *(e for e, _ in events if 0 < e < steps)})
+    ei = 0
+    for k0, k1 in zip(bounds[:-1], bounds[1:], strict=True):
+        while ei < len(events) and events[ei][0] <= k0:
+            loop.set_targets(enabled_controllers(events[ei][1], num_stages))
+            modes.append((k0, events[ei][1].label))
+            ei += 1
+        if not loop.run(k0, k1):
+            return False
+        if progress is not None and (k1 - 1) % every == 0:
+            progress((k1 - 1) / steps)
+    loop.finish(steps)
+    return True
+
+
+__all__ = ["BLOCK", "FastLoop", "available", "run_fast"]

@@ -1,0 +1,174 @@
+"""Shared adapter of the feedback and feedforward controller nodes.
+
+One sample: ``/dcsms/velocity/<body>`` (TwistStamped) -> ``loop.step`` -> ``/dcsms/force/<id>``
+(WrenchStamped, frame_id = the stage the actuators push, stamp = the input's stamp). The node
+publishes for every sample, zero while disabled, because the lockstep plant waits for every
+controller. A repeated stamp (lockstep retransmission) is answered from the cache; an older stamp
+is ignored. ``~/enable`` (std_srvs/SetBool) fades the loop in or out over
+``control.fade_time_s``; parameter ``enabled`` starts it at full gain, as the batch engine starts
+the controllers of its initial mode.
+
+Real time only: a watchdog publishes zero force while no input arrived for
+``control.input_timeout_s`` (node clock, i.e. simulated time under ``use_sim_time``). In lockstep
+the plant's own timeout covers a silent input, and a pause of the plant is not a fault.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import TwistStamped, WrenchStamped
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from std_srvs.srv import SetBool
+
+from dcsms_ros.core import topics
+from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.controllers import make_controller
+from dcsms_ros.core.modes import controller_stage
+from dcsms_ros.errors import ConfigError
+from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_array, wrench_msg
+from dcsms_ros.nodes.params import NodeConfig, declare_local, declare_schedule
+from dcsms_ros.nodes.runtime import Stoppable
+
+
+class ControllerNode(Node, Stoppable):
+    """Base of :class:`FeedbackControllerNode` and :class:`FeedforwardControllerNode`."""
+
+    def setup(self, cid: str, select, body: str) -> None:
+        """Declare parameters, build the core loop and the ROS interfaces.
+
+        Parameters
+        ----------
+        cid : str
+            Controller id (``fb_stage1`` …, ``ff_stage1``); must equal the node name.
+        select : callable
+            Parameter selector (see :mod:`.params`).
+        body : str
+            Body whose velocity is the input (``ground`` or ``stage<i>``).
+        """
+        if self.get_name() != cid:
+            raise ConfigError(f"node {self.get_name()}: controller {cid} must run as node "
+                              f"'{cid}' (add --ros-args -r __node:={cid}) so that its enable "
+                              f"service is {topics.enable_service(cid)}")
+        self.cid = cid
+        self.params = NodeConfig(self, select, self._on_change)
+        self.lockstep = declare_schedule(self) == "lockstep"
+        enabled = declare_local(self, "enabled", False, "Start enabled at full gain (no fade), "
+                                "as the batch engine starts its initial mode")
+        cfg = self.params.cfg
+        self.loop = make_controller(cfg, cid, enabled=bool(enabled))
+        self.dof = cfg.plant.dof
+        self.frame = f"stage{controller_stage(cid)}"
+        self.input_timeout_s = cfg.control.input_timeout_s
+        self.pub = self.create_publisher(WrenchStamped, topics.force_topic(cid),
+                                         qos.stream_pub(self.lockstep))
+        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        self.create_subscription(TwistStamped, topics.velocity_topic(body), self._on_velocity,
+                                 qos.stream_sub(self.lockstep))
+        self.create_service(SetBool, "~/enable", self._on_enable)
+        self._zero = np.zeros(self.dof)
+        self.last_ns = -1
+        self._cache: WrenchStamped | None = None
+        self._t_in = None
+        self.stale = False
+        self.samples = self.repeats = self.out_of_order = 0
+        self.nonfinite_out = self.stale_events = 0
+        self._seen = (0, 0)
+        if not self.lockstep:
+            self.create_timer(max(self.input_timeout_s / 2.0, 1e-3), self._watchdog)
+        self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(f"{cid}: input {topics.velocity_topic(body)}, output "
+                               f"{topics.force_topic(cid)}, "
+                               f"{'enabled' if enabled else 'disabled'}")
+
+    # -- the loop ----------------------------------------------------------------------------
+    def _on_velocity(self, msg: TwistStamped) -> None:
+        ns = stamp_ns(msg.header.stamp)
+        if ns == self.last_ns and self._cache is not None:
+            self.repeats += 1
+            self.pub.publish(self._cache)
+            return
+        if ns < self.last_ns:
+            self.out_of_order += 1
+            return
+        self.last_ns = ns
+        self._t_in = self.get_clock().now()
+        if self.stale:
+            self.stale = False
+            self.get_logger().info(f"{self.cid}: input is back")
+        w = self.loop.step(twist_array(msg, self.dof))
+        if not np.isfinite(w).all():  # defensive: a NaN must never reach an actuator
+            self.nonfinite_out += 1
+            w = self._zero
+        self._cache = wrench_msg(w, ns, self.frame)
+        self.pub.publish(self._cache)
+        self.samples += 1
+        seen = (self.loop.nonfinite, self.loop.saturations)
+        if seen != self._seen:
+            if seen[0] != self._seen[0]:
+                self.get_logger().warning(f"{self.cid}: non-finite input ignored (total "
+                                          f"{seen[0]})", throttle_duration_sec=2.0)
+            if seen[1] != self._seen[1]:
+                self.get_logger().warning(f"{self.cid}: actuator saturation (total {seen[1]} "
+                                          f"samples)", throttle_duration_sec=2.0)
+            self._seen = seen
+
+    def _watchdog(self) -> None:
+        if self._t_in is None:
+            return
+        now = self.get_clock().now()
+        if (now - self._t_in).nanoseconds * 1e-9 <= self.input_timeout_s:
+            return
+        if not self.stale:
+            self.stale = True
+            self.stale_events += 1
+            self.get_logger().warning(f"{self.cid}: no input for {self.input_timeout_s:g} s: "
+                                      f"zero force", throttle_duration_sec=2.0)
+        self.pub.publish(wrench_msg(self._zero, now.nanoseconds, self.frame))
+
+    def _on_enable(self, request: SetBool.Request, response: SetBool.Response):
+        was = self.loop.enabled
+        self.loop.enable(bool(request.data))
+        word = {True: "enabled", False: "disabled"}
+        response.success = True
+        response.message = (f"{self.cid} {word[bool(request.data)]} (was {word[was]}; fade "
+                            f"{self.params.cfg.control.fade_time_s:g} s)")
+        self.get_logger().info(response.message)
+        return response
+
+    # -- parameters --------------------------------------------------------------------------
+    def _on_change(self, cfg: SystemConfig, changed: set[str]) -> None:
+        """Rebuild the loop from the new tuning, keeping what state can be kept."""
+        self.input_timeout_s = cfg.control.input_timeout_s
+        old = self.loop
+        new = make_controller(cfg, self.cid, enabled=old.enabled)
+        if "control.fade_time_s" not in changed:
+            new.fader = old.fader  # keep the gain ramp exactly where it is
+        # same filter structure (a gain or corner tweak): carry the delay states over so the
+        # output continues instead of restarting from rest
+        fo, fn = getattr(old, "_filter", None), getattr(new, "_filter", None)
+        if fo is not None and fn is not None:
+            so, sn = fo.get_state(), fn.get_state()
+            if so.shape == sn.shape:
+                fn.set_state(so)
+        new.saturations, new.nonfinite = old.saturations, old.nonfinite
+        self.loop = new
+
+    # -- reporting ---------------------------------------------------------------------------
+    def _report(self) -> None:
+        level = DiagnosticStatus.WARN if self.stale else DiagnosticStatus.OK
+        arr = DiagnosticArray()
+        arr.header.stamp = to_stamp(max(self.last_ns, 0))
+        arr.status = [status(self.cid, level, "stale input: zero force" if self.stale else
+                             ("enabled" if self.loop.enabled else "disabled"), {
+            "enabled": self.loop.enabled, "gain": f"{self.loop.fader.value:.3f}",
+            "samples": self.samples, "repeats": self.repeats,
+            "out_of_order": self.out_of_order, "saturations": self.loop.saturations,
+            "nonfinite_inputs": self.loop.nonfinite, "nonfinite_outputs": self.nonfinite_out,
+            "stale_events": self.stale_events})]
+        self.pub_diag.publish(arr)
+
+    def close(self) -> None:
+        """Nothing to flush beyond the DDS history (observers read it before exit)."""

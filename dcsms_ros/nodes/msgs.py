@@ -1,0 +1,96 @@
+"""Message <-> ndarray conversions (SI units throughout, ``header.stamp`` = sample time).
+
+A body vector has ``dof`` entries: 1 (vertical only, ``z``) or 6 (``x y z rx ry rz``).
+Stamps are handled as integer nanoseconds so that lockstep matching is exact.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from geometry_msgs.msg import TwistStamped, WrenchStamped
+from numpy.typing import NDArray
+from sensor_msgs.msg import JointState
+
+Array = NDArray[np.float64]
+NS = 1_000_000_000
+
+
+def stamp_ns(stamp: Time) -> int:
+    """builtin_interfaces/Time -> integer nanoseconds."""
+    return int(stamp.sec) * NS + int(stamp.nanosec)
+
+
+def to_stamp(ns: int) -> Time:
+    """Integer nanoseconds -> builtin_interfaces/Time."""
+    return Time(sec=ns // NS, nanosec=ns % NS)
+
+
+def sample_ns(k: int, rate_hz: float) -> int:
+    """Stamp of sample ``k`` at ``rate_hz``: ``round(k / rate_hz)`` in ns (exact, no drift)."""
+    return int(round(k * NS / rate_hz))
+
+
+def twist_msg(v: Array, ns: int, frame: str) -> TwistStamped:
+    """Twist (dof,) m/s, rad/s -> TwistStamped in ``frame``."""
+    m = TwistStamped()
+    m.header.stamp = to_stamp(ns)
+    m.header.frame_id = frame
+    if v.shape[0] == 1:
+        m.twist.linear.z = float(v[0])
+    else:
+        lin, ang = m.twist.linear, m.twist.angular
+        lin.x, lin.y, lin.z, ang.x, ang.y, ang.z = (float(x) for x in v[:6])
+    return m
+
+
+def twist_array(m: TwistStamped, dof: int) -> Array:
+    """TwistStamped -> (dof,) array; 1dof keeps ``linear.z`` only."""
+    lin, ang = m.twist.linear, m.twist.angular
+    if dof == 1:
+        return np.array([lin.z])
+    return np.array([lin.x, lin.y, lin.z, ang.x, ang.y, ang.z])
+
+
+def wrench_msg(w: Array, ns: int, frame: str) -> WrenchStamped:
+    """Wrench (dof,) N, N*m -> WrenchStamped in ``frame``."""
+    m = WrenchStamped()
+    m.header.stamp = to_stamp(ns)
+    m.header.frame_id = frame
+    if w.shape[0] == 1:
+        m.wrench.force.z = float(w[0])
+    else:
+        f, t = m.wrench.force, m.wrench.torque
+        f.x, f.y, f.z, t.x, t.y, t.z = (float(x) for x in w[:6])
+    return m
+
+
+def wrench_array(m: WrenchStamped, dof: int) -> Array:
+    """WrenchStamped -> (dof,) array; 1dof keeps ``force.z`` only."""
+    f, t = m.wrench.force, m.wrench.torque
+    if dof == 1:
+        return np.array([f.z])
+    return np.array([f.x, f.y, f.z, t.x, t.y, t.z])
+
+
+def joint_state(names: Sequence[str], ns: int, velocity: Array | None = None,
+                effort: Array | None = None) -> JointState:
+    """A JointState with channel ``names`` and ``velocity`` (m/s) or ``effort`` (N)."""
+    m = JointState()
+    m.header.stamp = to_stamp(ns)
+    m.name = list(names)
+    if velocity is not None:
+        m.velocity = velocity.tolist()
+    if effort is not None:
+        m.effort = effort.tolist()
+    return m
+
+
+def status(name: str, level: bytes, message: str, values: dict[str, object],
+           hardware_id: str = "dcsms") -> DiagnosticStatus:
+    """A DiagnosticStatus with ``values`` as key/value strings."""
+    return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id,
+                            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])

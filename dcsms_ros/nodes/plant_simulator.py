@@ -1,0 +1,367 @@
+"""Plant simulator node: the cascade, its geophones, disturbances and actuators.
+
+Publishes ``/clock``, the raw geophone channels, the true body velocities and the forces the
+actuators applied; subscribes to every controller's force command. Two schedules (parameter
+``schedule``):
+
+* ``lockstep`` - sample k is published, and the plant advances to k+1 only when it holds the
+  wrench of every expected controller stamped with sample k's time. The same
+  :class:`~dcsms_ros.core.simulator.PlantSimulator` calls happen in the same order as in
+  :func:`dcsms_ros.core.engine.simulate`, so the trajectory is identical to the batch engine's.
+  A reply missing after ``control.lockstep_timeout_s`` (wall clock) is a fault: zero force for
+  that controller, counted and logged; after ``absent_after`` faults in a row the controller is
+  *absent* and not waited for until it publishes again. If a reply is missing after
+  ``lockstep_retry_s`` the sample is published again with the same stamp (the decoupling and
+  controller nodes answer a repeated stamp from their cache, so nothing steps twice).
+* ``realtime`` - the plant steps on the wall clock at ``plant.rate_hz``, using the newest force
+  of each controller; a force older than ``control.input_timeout_s`` counts as zero.
+
+Startup handshake: sample 0 is published only once every force topic has a publisher, the raw
+topic a subscriber, and each topic in ``wait_for_subscribers`` a subscriber outside the graph
+(a recorder or test probe), or after ``handshake_timeout_s``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import TwistStamped, WrenchStamped
+from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+
+from dcsms_ros.core import topics
+from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.modes import controller_ids
+from dcsms_ros.core.simulator import PlantSimulator
+from dcsms_ros.errors import ConfigError
+from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.msgs import (
+    joint_state,
+    sample_ns,
+    stamp_ns,
+    status,
+    to_stamp,
+    twist_msg,
+    wrench_array,
+)
+from dcsms_ros.nodes.params import SELECTORS, NodeConfig, declare_local, declare_schedule
+from dcsms_ros.nodes.runtime import Stoppable, main_for
+
+#: Node names of the graph itself (a subscriber from any other node is an observer).
+GRAPH_NODES = ("plant_simulator", "sensor_decoupling", "mode_switch")
+#: Real time: at most this many samples are computed in one timer callback to catch up.
+MAX_BURST = 20
+#: Seconds the handshake waits after the graph looks connected, so DDS endpoints match too.
+SETTLE_S = 0.2
+
+
+class PlantSimulatorNode(Node, Stoppable):
+    """ROS adapter around :class:`~dcsms_ros.core.simulator.PlantSimulator`."""
+
+    def __init__(self, **kwargs) -> None:
+        kwargs.setdefault("namespace", topics.NAMESPACE)
+        super().__init__("plant_simulator", **kwargs)
+        self.params = NodeConfig(self, SELECTORS["plant_simulator"], self._on_change)
+        cfg = self.params.cfg
+        n = cfg.plant.num_stages
+        self.schedule = declare_schedule(self)
+        self.lockstep = self.schedule == "lockstep"
+        self.duration_s = declare_local(self, "duration_s", 0.0, "Simulated time after which "
+                                        "the node exits; 0 runs until stopped [s]", lo=0.0,
+                                        hi=1e9)
+        wanted = declare_local(self, "controllers", list(controller_ids(n)),
+                               "Controller ids whose force topics are summed (and, in lockstep, "
+                               "waited for)")
+        unknown = sorted(set(wanted) - set(controller_ids(n)))
+        if unknown:
+            raise ConfigError(f"node plant_simulator: unknown controllers {unknown}; expected "
+                              f"some of {list(controller_ids(n))}")
+        # the batch engine sums in controller_ids order; so must we, bit for bit
+        self.controllers = [c for c in controller_ids(n) if c in wanted]
+        self.retry_s = declare_local(self, "lockstep_retry_s", 0.1, "Lockstep: republish a "
+                                     "sample when a reply is missing after this wall time [s]",
+                                     read_only=False, lo=0.001, hi=60.0)
+        self.absent_after = declare_local(self, "absent_after", 3, "Lockstep: consecutive "
+                                          "timeouts after which a controller is absent",
+                                          read_only=False, lo=1, hi=1000000)
+        self.handshake_timeout_s = declare_local(self, "handshake_timeout_s", 10.0,
+                                                 "Longest wait for the graph before sample 0 "
+                                                 "[s]", lo=0.0, hi=600.0)
+        self.observed = declare_local(self, "wait_for_subscribers", Parameter.Type.STRING_ARRAY,
+                                      "Topics that need a subscriber outside the graph (recorder,"
+                                      " probe) before sample 0")
+        self.publish_truth = declare_local(self, "publish_truth", True,
+                                           "Publish the true velocities on /dcsms/truth/<body>")
+        clock_hz = declare_local(self, "clock_rate_hz", 1000.0, "Rate of /clock (every node's "
+                                 "sim time); lower than plant.rate_hz saves a callback per "
+                                 "sample in every node [Hz]", lo=1.0, hi=1e5)
+        period = declare_local(self, "status_period_s", 1.0, "Diagnostics period [s]",
+                               lo=0.05, hi=60.0)
+        self.sim = PlantSimulator(cfg)
+        self.dof = cfg.plant.dof
+        self.rate = cfg.plant.rate_hz
+        self.bodies = topics.body_names(n)
+        self.channel_names = [c.name for c in self.sim.channels]
+        self.clock_every = max(1, int(round(cfg.plant.rate_hz / clock_hz)))
+        self.total_steps = int(round(self.duration_s * self.rate)) if self.duration_s else 0
+        self._timeouts(cfg)
+
+        pub_qos = qos.stream_pub(self.lockstep)
+        self.pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, qos.clock())
+        self.pub_raw = self.create_publisher(JointState, topics.SENSORS_RAW, pub_qos)
+        self.pub_applied = self.create_publisher(JointState, topics.ACTUATORS_APPLIED, pub_qos)
+        self.pub_truth = [self.create_publisher(TwistStamped, topics.truth_topic(b), pub_qos)
+                          for b in self.bodies] if self.publish_truth else []
+        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        sub_qos = qos.stream_sub(self.lockstep)
+        for cid in self.controllers:
+            self.create_subscription(WrenchStamped, topics.force_topic(cid),
+                                     lambda m, c=cid: self._on_force(c, m), sub_qos)
+        self._zero = np.zeros(self.dof)
+        # lockstep state
+        self._ns = 0
+        self._waiting = False
+        self._got: dict[str, np.ndarray] = {}
+        self._t_sent = self._t_retx = 0.0
+        self._absent: set[str] = set()
+        self._consec = dict.fromkeys(self.controllers, 0)
+        self.faults = dict.fromkeys(self.controllers, 0)
+        self.retransmits = 0
+        # real-time state
+        self._held: dict[str, tuple[np.ndarray, float]] = {}
+        self._stale = dict.fromkeys(self.controllers, True)
+        self.stale_events = dict.fromkeys(self.controllers, 0)
+        self.overruns = 0
+        self._t0 = 0.0
+        # bookkeeping
+        self.started = False
+        self._t_start = time.monotonic()
+        self._ready_at: float | None = None
+        self._rate_mark = (0, time.monotonic())
+        self.achieved_hz = 0.0
+        self._nonfinite_seen = 0
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        tick = 1.0 / self.rate if not self.lockstep else 0.005
+        self._tick_timer = self.create_timer(tick, self._tick, clock=steady)
+        self.create_timer(period, self._report, clock=steady)
+        self.get_logger().info(
+            f"{self.schedule} at {self.rate:g} Hz, {n} stages ({cfg.plant.fidelity}), "
+            f"controllers {self.controllers}, {len(self.channel_names)} channels, "
+            f"{self.sim.num_actuators} actuators, seed {cfg.disturbance.seed}")
+
+    # -- parameters ------------------------------------------------------------------------
+    def _timeouts(self, cfg: SystemConfig) -> None:
+        self.input_timeout_s = cfg.control.input_timeout_s
+        self.lockstep_timeout_s = cfg.control.lockstep_timeout_s
+
+    def _on_change(self, cfg: SystemConfig, changed: set[str]) -> None:
+        # only timeouts are mutable here: the plant and its disturbances are fixed at start
+        self._timeouts(cfg)
+
+    # -- handshake ---------------------------------------------------------------------------
+    def _missing(self) -> list[str]:
+        """What the graph still lacks before sample 0 can be published."""
+        out = [f"publisher of {topics.force_topic(c)}" for c in self.controllers
+               if self.count_publishers(topics.force_topic(c)) == 0]
+        if self.count_subscribers(topics.SENSORS_RAW) == 0:
+            out.append(f"subscriber of {topics.SENSORS_RAW}")
+        graph = set(GRAPH_NODES) | set(controller_ids(len(self.bodies) - 1))
+        for topic in self.observed:
+            infos = self.get_subscriptions_info_by_topic(topic)
+            if not any(i.node_name not in graph for i in infos):
+                out.append(f"observer of {topic}")
+        return out
+
+    def _handshake(self, now: float) -> None:
+        missing = self._missing()
+        if missing and now - self._t_start < self.handshake_timeout_s:
+            self._ready_at = None
+            return
+        if missing:
+            self.get_logger().warning(f"starting without: {', '.join(missing)}")
+        elif self._ready_at is None:
+            self._ready_at = now
+            return
+        elif now - self._ready_at < SETTLE_S:
+            return
+        self.started = True
+        self._t0 = now
+        self._rate_mark = (self.sim.k, now)
+        self.get_logger().info("graph connected: stepping")
+
+    # -- stepping ----------------------------------------------------------------------------
+    def _tick(self) -> None:
+        now = time.monotonic()
+        if self.finished:
+            return
+        if not self.started:
+            self._handshake(now)
+            if not self.started:
+                return
+        if not self.lockstep:
+            self._realtime(now)
+        elif not self._waiting:
+            self._pump()
+        elif now - self._t_sent > self.lockstep_timeout_s:
+            self._lockstep_timeout()
+        elif now - self._t_retx > self.retry_s:
+            self.pub_raw.publish(self._raw_msg)
+            self._t_retx = now
+            self.retransmits += 1
+
+    def _publish_sample(self) -> None:
+        """Publish sample k: clock, true velocities, raw channels (engine order)."""
+        ns = sample_ns(self.sim.k, self.rate)
+        self._ns = ns
+        truth = self.sim.truth().copy()
+        raw = self.sim.measure()
+        stamp = to_stamp(ns)
+        if self.sim.k % self.clock_every == 0:
+            self.pub_clock.publish(ClockMsg(clock=stamp))
+        for b, (pub, v) in enumerate(zip(self.pub_truth, truth, strict=False)):
+            pub.publish(twist_msg(v, ns, self.bodies[b]))
+        self._raw_msg = joint_state(self.channel_names, ns, velocity=raw)
+        self.pub_raw.publish(self._raw_msg)
+
+    def _advance(self, wrenches: dict[str, np.ndarray]) -> None:
+        applied = self.sim.advance(wrenches)
+        self.pub_applied.publish(joint_state(self.sim.actuator_names, self._ns, effort=applied))
+        if self.sim.nonfinite_inputs != self._nonfinite_seen:
+            self._nonfinite_seen = self.sim.nonfinite_inputs
+            self.get_logger().warning(f"non-finite force commands ignored (total "
+                                      f"{self._nonfinite_seen})", throttle_duration_sec=2.0)
+        if self.total_steps and self.sim.k >= self.total_steps:
+            self._done()
+
+    def _pump(self, max_steps: int = 50) -> None:
+        """Lockstep: publish samples until one needs replies (bounded, to stay responsive)."""
+        for _ in range(max_steps):
+            if self.finished or self._waiting:
+                return
+            self._publish_sample()
+            self._got = {}
+            if any(c not in self._absent for c in self.controllers):
+                self._waiting = True
+                self._t_sent = self._t_retx = time.monotonic()
+                return
+            self._complete()
+
+    def _complete(self) -> None:
+        self._waiting = False
+        self._advance({c: self._got.get(c, self._zero) for c in self.controllers})
+
+    def _on_force(self, cid: str, msg: WrenchStamped) -> None:
+        w = wrench_array(msg, self.dof)
+        if not self.lockstep:
+            self._held[cid] = (w, time.monotonic())
+            return
+        if cid in self._absent:
+            self._absent.discard(cid)
+            self.get_logger().info(f"{cid} is back")
+        if not self._waiting or stamp_ns(msg.header.stamp) != self._ns or cid in self._got:
+            return  # a repeated or late reply: the first one for a sample counts
+        self._got[cid] = w
+        self._consec[cid] = 0
+        if all(c in self._got or c in self._absent for c in self.controllers):
+            self._complete()
+            self._pump()
+
+    def _lockstep_timeout(self) -> None:
+        missing = [c for c in self.controllers if c not in self._got and c not in self._absent]
+        for c in missing:
+            self.faults[c] += 1
+            self._consec[c] += 1
+            if self._consec[c] >= self.absent_after:
+                self._absent.add(c)
+                self.get_logger().error(f"{c} missed {self._consec[c]} samples in a row: "
+                                        f"absent, not waited for until it publishes again")
+        self.get_logger().warning(
+            f"no force from {', '.join(missing)} for t={self._ns / 1e9:.4f} s within "
+            f"{self.lockstep_timeout_s:g} s: zero force (faults {self.faults})",
+            throttle_duration_sec=2.0)
+        self._complete()
+        self._pump()
+
+    def _realtime(self, now: float) -> None:
+        due = int((now - self._t0) * self.rate) + 1 - self.sim.k
+        if due > MAX_BURST:
+            # too far behind to catch up without a burst: drop the backlog, count it
+            self.overruns += due - 1
+            self._t0 += (due - 1) / self.rate
+            due = 1
+        for _ in range(max(due, 0)):
+            self._publish_sample()
+            wrenches = {}
+            for c in self.controllers:
+                w, t = self._held.get(c, (self._zero, -math.inf))
+                stale = now - t > self.input_timeout_s
+                if stale and not self._stale[c]:
+                    self.stale_events[c] += 1
+                    self.get_logger().warning(f"force of {c} is stale (> "
+                                              f"{self.input_timeout_s:g} s): zero",
+                                              throttle_duration_sec=2.0)
+                self._stale[c] = stale
+                wrenches[c] = self._zero if stale else w
+            self._advance(wrenches)
+            if self.finished:
+                return
+
+    def _done(self) -> None:
+        wall = time.monotonic() - self._t0
+        self.get_logger().info(f"finished {self.sim.k} samples ({self.sim.t:.3f} s simulated) "
+                               f"in {wall:.2f} s wall: {self.sim.k / max(wall, 1e-9):.0f} "
+                               f"samples/s")
+        self._report()
+        self.finish()
+
+    # -- reporting ---------------------------------------------------------------------------
+    def controller_state(self, c: str) -> str:
+        """``ok``, ``absent`` (lockstep) or ``stale`` (real time) for one controller."""
+        if self.lockstep:
+            return "absent" if c in self._absent else "ok"
+        return "stale" if self._stale[c] else "ok"
+
+    def _report(self) -> None:
+        k0, t0 = self._rate_mark
+        now = time.monotonic()
+        if self.started and now > t0:
+            self.achieved_hz = (self.sim.k - k0) / (now - t0)
+            self._rate_mark = (self.sim.k, now)
+        states = {c: self.controller_state(c) for c in self.controllers}
+        bad = [c for c, s in states.items() if s != "ok"]
+        level = DiagnosticStatus.WARN if bad and self.started else DiagnosticStatus.OK
+        msg = ("degraded: " + ", ".join(f"{c} {states[c]}" for c in bad) if bad and
+               self.started else "running" if self.started else "waiting for the graph")
+        values = {"schedule": self.schedule, "sample": self.sim.k,
+                  "sim_time_s": f"{self.sim.t:.6f}",
+                  "achieved_rate_hz": f"{self.achieved_hz:.1f}", "rate_hz": f"{self.rate:g}",
+                  "lockstep_timeouts": sum(self.faults.values()),
+                  "retransmits": self.retransmits, "stale_events": sum(self.stale_events.values()),
+                  "overruns": self.overruns, "nonfinite_inputs": self.sim.nonfinite_inputs,
+                  "saturations": self.sim.saturations, "finished": self.finished}
+        arr = DiagnosticArray()
+        arr.header.stamp = to_stamp(self._ns)
+        arr.status = [status("plant_simulator", level, msg, values)] + [
+            status(f"plant_simulator/{c}", DiagnosticStatus.OK if s == "ok" else
+                   DiagnosticStatus.WARN, s, {"timeouts": self.faults[c],
+                                              "stale_events": self.stale_events[c]})
+            for c, s in states.items()]
+        self.pub_diag.publish(arr)
+
+    def close(self) -> None:
+        """Give reliable observers a moment to receive what was published (clean exit)."""
+        for pub in [self.pub_raw, self.pub_applied, *self.pub_truth]:
+            pub.wait_for_all_acked(Duration(seconds=0.5))
+
+
+main = main_for(PlantSimulatorNode)
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,68 @@
+"""QoS profiles of the graph, each chosen on purpose.
+
+Publishers are always *reliable*: a reliable writer matches both reliable and best-effort
+readers, so the recorder (reliable, to lose nothing) and the control loop can subscribe to the
+same stream. What differs between the two schedules is the readers of the control path:
+
+* **lockstep** - a lost sample would desynchronise the loop from the batch engine, and at most
+  one sample per topic is in flight in the loop itself. Readers are reliable keep-last
+  :data:`LOCKSTEP_DEPTH`; the writers keep the same depth so a slower observer (recorder, test
+  probe) can fall behind by that many samples without losing one, while the loop never waits
+  for it (keep-last writers never block).
+* **real time** - the newest sample is the only useful one; a backlog would add latency to
+  every later sample. Control-path readers are best-effort keep-last 1 (the ROS
+  ``sensor_data`` profile): a late callback processes the freshest sample and the skipped ones
+  are gone, as on a real-time controller that misses a deadline. Writers keep
+  :data:`REALTIME_DEPTH` samples for reliable observers.
+* **latched state** (``/dcsms/mode``, ``/dcsms/config``) - reliable, transient local, depth 1:
+  a late joiner (``dcsms mode``, a recorder, a restarted node) gets the current value at once.
+"""
+
+from __future__ import annotations
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+#: Writer/reader history of lockstep streams: samples a slow observer may lag behind.
+LOCKSTEP_DEPTH = 1000
+#: Writer history of real-time streams (50 ms at 2 kHz) for reliable observers.
+REALTIME_DEPTH = 100
+
+
+def latched() -> QoSProfile:
+    """Reliable, transient local, keep-last 1: current mode and configuration."""
+    return QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def stream_pub(lockstep: bool) -> QoSProfile:
+    """Writer of a per-sample stream (sensors, velocities, forces, applied, truth)."""
+    return QoSProfile(depth=LOCKSTEP_DEPTH if lockstep else REALTIME_DEPTH,
+                      history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def stream_sub(lockstep: bool) -> QoSProfile:
+    """Reader of a per-sample stream on the control path (see the module notes)."""
+    if lockstep:
+        return stream_pub(True)
+    return QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def status() -> QoSProfile:
+    """Diagnostics: reliable keep-last 10, volatile (a periodic report; old ones are moot)."""
+    return QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+#: /clock: reliable keep-last 1 would block nobody; rclpy's time source subscribes with
+#: keep-last 1 best-effort-compatible QoS, so only the newest clock matters.
+def clock() -> QoSProfile:
+    """Writer of ``/clock``: reliable keep-last 1 (readers only need the newest time)."""
+    return QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)

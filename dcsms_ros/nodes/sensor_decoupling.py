@@ -1,0 +1,111 @@
+"""Sensor-decoupling node: raw geophone channels -> one twist per body.
+
+Subscribes to ``/dcsms/sensors/raw`` (``sensor_msgs/JointState``, ``velocity`` m/s), runs
+:class:`~dcsms_ros.core.decoupling.Decoupler` once per sample and publishes
+``/dcsms/velocity/<body>`` (``geometry_msgs/TwistStamped``, frame_id = body) with the sample's
+stamp. A repeated stamp (lockstep retransmission) is answered from the cache without stepping the
+filters again; an older stamp is ignored. Channels are matched by name, so a publisher may send
+them in any order; a missing channel reads NaN, which the core turns into a zero twist for that
+body (counted).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import TwistStamped
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from dcsms_ros.core import topics
+from dcsms_ros.core.decoupling import Decoupler
+from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_msg
+from dcsms_ros.nodes.params import SELECTORS, NodeConfig, declare_schedule
+from dcsms_ros.nodes.runtime import main_for
+
+
+class SensorDecouplingNode(Node):
+    """ROS adapter around :class:`~dcsms_ros.core.decoupling.Decoupler`."""
+
+    def __init__(self, **kwargs) -> None:
+        kwargs.setdefault("namespace", topics.NAMESPACE)
+        super().__init__("sensor_decoupling", **kwargs)
+        self.params = NodeConfig(self, SELECTORS["sensor_decoupling"])
+        cfg = self.params.cfg
+        lockstep = declare_schedule(self) == "lockstep"
+        self.dec = Decoupler(cfg)
+        self.dof = cfg.plant.dof
+        self.bodies = topics.body_names(cfg.plant.num_stages)
+        self.names = list(self.dec.channel_names)
+        self._index: dict[tuple[str, ...], np.ndarray] = {}
+        self.pubs = [self.create_publisher(TwistStamped, topics.velocity_topic(b),
+                                           qos.stream_pub(lockstep)) for b in self.bodies]
+        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        self.create_subscription(JointState, topics.SENSORS_RAW, self._on_raw,
+                                 qos.stream_sub(lockstep))
+        self.last_ns = -1
+        self._cache: list[TwistStamped] = []
+        self.samples = 0
+        self.repeats = 0
+        self.out_of_order = 0
+        self.bad_messages = 0
+        self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _channels(self, msg: JointState) -> np.ndarray:
+        """Channel velocities in the decoupler's order (NaN where missing)."""
+        v = np.asarray(msg.velocity, dtype=np.float64)
+        if list(msg.name) == self.names and v.shape[0] == len(self.names):
+            return v  # the plant's own order: the common, cheap case
+        key = tuple(msg.name)
+        idx = self._index.get(key)
+        if idx is None:
+            pos = {n: i for i, n in enumerate(key)}
+            idx = np.array([pos.get(n, -1) for n in self.names])
+            self._index[key] = idx
+            if (idx < 0).any() or len(key) != v.shape[0]:
+                self.get_logger().warning(f"raw message lacks channels "
+                                          f"{[n for n, i in zip(self.names, idx) if i < 0]} or "
+                                          f"has {v.shape[0]} values for {len(key)} names")
+        if len(key) != v.shape[0]:
+            self.bad_messages += 1
+            return np.full(len(self.names), np.nan)
+        out = np.where(idx >= 0, v[np.maximum(idx, 0)], np.nan)
+        return out
+
+    def _on_raw(self, msg: JointState) -> None:
+        ns = stamp_ns(msg.header.stamp)
+        if ns == self.last_ns:
+            self.repeats += 1
+            for pub, m in zip(self.pubs, self._cache, strict=True):
+                pub.publish(m)
+            return
+        if ns < self.last_ns:
+            self.out_of_order += 1
+            return
+        tw = self.dec.step(self._channels(msg))
+        self.last_ns = ns
+        self.samples += 1
+        self._cache = [twist_msg(tw[i], ns, b) for i, b in enumerate(self.bodies)]
+        for pub, m in zip(self.pubs, self._cache, strict=True):
+            pub.publish(m)
+        if self.dec.nonfinite:
+            self.get_logger().warning(f"non-finite sensor channels: {self.dec.nonfinite} "
+                                      f"body samples zeroed", throttle_duration_sec=2.0)
+
+    def _report(self) -> None:
+        level = DiagnosticStatus.WARN if self.dec.nonfinite or self.bad_messages else \
+            DiagnosticStatus.OK
+        arr = DiagnosticArray()
+        arr.header.stamp = to_stamp(max(self.last_ns, 0))
+        arr.status = [status("sensor_decoupling", level, "running", {
+            "samples": self.samples, "repeats": self.repeats, "out_of_order": self.out_of_order,
+            "nonfinite": self.dec.nonfinite, "bad_messages": self.bad_messages})]
+        self.pub_diag.publish(arr)
+
+
+main = main_for(SensorDecouplingNode)
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,90 @@
+"""``dcsms sim``: batch run to bag, ground replay from a bag, one-line errors with exit 2."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import Reader
+
+from dcsms_ros.analysis import cdr
+from dcsms_ros.cli import main
+from dcsms_ros.cli.sim import parse_schedule
+from dcsms_ros.core.modes import Mode
+
+
+def _twists(bag: Path, topic: str) -> np.ndarray:
+    with Reader(bag) as r:
+        conns = [c for c in r.connections if c.topic == topic]
+        raw = [bytes(d) for _, _, d in r.messages(connections=conns)]
+    return cdr.decode_batch(cdr.TWIST_STAMPED, raw).fields["twist"]
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 2 s FBC -> Passive batch bag written by the CLI, with /clock, on SQLite."""
+    out = tmp_path_factory.mktemp("sim") / "a"
+    assert main(["sim", "--mode", "fbc", "--duration", "2", "--seed", "4", "--out", str(out),
+                 "--schedule", "1:passive", "--storage", "sqlite3", "--clock"]) == 0
+    return out
+
+
+def test_sim_writes_bag(bag: Path) -> None:
+    """The bag holds the graph's topics (and /clock when asked) with one message per sample."""
+    with Reader(bag) as r:
+        counts = {c.topic: c.msgcount for c in r.connections}
+    assert counts["/dcsms/velocity/stage2"] == counts["/clock"] == 4000
+    assert counts["/dcsms/mode"] == 2 and counts["/dcsms/config"] == 1
+    assert len(counts) == 14 and next(bag.glob("*.db3"))
+
+
+def test_ground_from_replays_recorded_ground(bag: Path, tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """--ground-from BAG: the new run's true ground is the recorded decoupled ground velocity,
+    looped (with a warning) when the recording is shorter than the run."""
+    out = tmp_path / "b"
+    assert main(["sim", "--duration", "3", "--out", str(out), "--ground-from", str(bag)]) == 0
+    captured = capsys.readouterr()
+    assert "wrote" in captured.out and "looping" in captured.err
+    rec = _twists(bag, "/dcsms/velocity/ground")
+    got = _twists(out, "/dcsms/truth/ground")
+    np.testing.assert_array_equal(got[:4000], rec)
+    np.testing.assert_array_equal(got[4000:], rec[:2000])
+    spec = f"{bag}:/dcsms/truth/ground"
+    assert main(["sim", "--duration", "1", "--out", str(tmp_path / "c"), "--ground-from",
+                 spec]) == 0
+    np.testing.assert_array_equal(_twists(tmp_path / "c", "/dcsms/truth/ground"),
+                                  _twists(bag, "/dcsms/truth/ground")[:2000])
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--ground-from", "/nonexistent/bag"], "no such bag"),
+    (["--ground-from", "{bag}:/dcsms/nope"], "no topic /dcsms/nope"),
+    (["--ground-from", "{bag}:/dcsms/mode"], "expected geometry_msgs/msg/TwistStamped"),
+    (["--schedule", "abc"], "expected TIME:MODE"),
+    (["--mode", "warp"], "unknown mode"),
+    (["--duration", "-1"], "must be > 0"),
+    (["--set", "m1=-5"], "stage1.mass"),
+])
+def test_bad_input_is_one_line_exit_2(bag: Path, tmp_path: Path, extra: list[str],
+                                      message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """Bad bag, topic, schedule, mode, duration or parameter: one line on stderr, exit 2."""
+    argv = ["sim", "--duration", "1", "--out", str(tmp_path / "x")]
+    argv += [a.format(bag=bag) for a in extra]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("dcsms: error:") and message in err, err
+    assert not (tmp_path / "x").exists() and not (tmp_path / "x.partial").exists()
+
+
+def test_existing_out_refused(bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An existing OUT is never overwritten: exit 2 before simulating."""
+    assert main(["sim", "--duration", "1", "--out", str(bag)]) == 2
+    assert "exists already" in capsys.readouterr().err
+
+
+def test_parse_schedule() -> None:
+    """T:MODE items in any order, any mode spelling."""
+    assert parse_schedule("20:DFBC+FFC, 5:fbc") == [(5.0, Mode.FBC), (20.0, Mode.DFBC_FFC)]
+    assert parse_schedule("") == []
