@@ -11,11 +11,13 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test" / "analysis"))
 
+# VmHWM, not ru_maxrss: Linux carries the parent's peak RSS across fork/exec into ru_maxrss.
 _PEAK = """
-import resource, sys
+import sys
 from dcsms_ros.analysis.report import analyze
 analyze([sys.argv[1]]) if sys.argv[1] != '-' else None
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM')][0]
+print(int(hwm.split()[1]) / 1024.0)
 """
 
 

@@ -11,6 +11,7 @@ EventsExecutor. Reliable QoS, depth 1. Independent of the dcsms nodes.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import sys
@@ -49,10 +50,8 @@ def echo(executor: str) -> None:
     ex = _executor(executor)
     ex.add_node(node)
     print("ready", flush=True)
-    try:
+    with contextlib.suppress(KeyboardInterrupt, Exception):  # SIGTERM/SIGINT end the echo
         ex.spin()
-    except (KeyboardInterrupt, Exception):  # noqa: BLE001 - shutdown on SIGTERM/SIGINT
-        pass
 
 
 def measure(duration_s: float = 5.0, domain: int = 87, executor: str = "single",

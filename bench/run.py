@@ -90,10 +90,12 @@ def machine() -> dict[str, Any]:
     info = {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
             "numpy": numpy.__version__, "platform": platform.platform(),
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    from importlib.metadata import PackageNotFoundError, version
+
     for mod in ("numba", "scipy", "rosbags"):
         try:
-            info[mod] = __import__(mod).__version__
-        except ImportError:
+            info[mod] = version(mod)
+        except PackageNotFoundError:
             info[mod] = None
     try:
         info["load_avg"] = os.getloadavg()

@@ -1,8 +1,76 @@
-"""Placeholder so that setup.py's launch/ glob has a file; replaced by the real graph launch."""
+"""Launch the dcsms_ros node graph on a real ROS 2 install (``ros2 launch dcsms_ros
+dcsms.launch.py``): the same nodes, names and parameter file that ``dcsms up`` starts.
+
+Arguments: ``config`` (params file, default the packaged ``config/table1.yaml``), ``schedule``
+(``realtime`` | ``lockstep``), ``mode`` (initial mode, e.g. ``dfbc_ffc``) and ``duration_s``
+(simulated seconds, 0 = until stopped).
+"""
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
 
 from launch import LaunchDescription
 
+PACKAGE = "dcsms_ros"
+NAMESPACE = "/dcsms"
+NUM_STAGES = 2
+#: Controllers each mode enables (dcsms_ros.core.modes, for the paper's two stages).
+ENABLED = {
+    "passive": (),
+    "fbc": ("fb_stage1",),
+    "ffc": ("ff_stage1",),
+    "fbc_ffc": ("fb_stage1", "ff_stage1"),
+    "dfbc": ("fb_stage1", "fb_stage2"),
+    "dfbc_ffc": ("fb_stage1", "fb_stage2", "ff_stage1"),
+}
 
-def generate_launch_description() -> LaunchDescription:
-    """An empty launch description (placeholder)."""
-    return LaunchDescription([])
+
+def _nodes(context, *args, **kwargs):
+    config = LaunchConfiguration("config").perform(context)
+    schedule = LaunchConfiguration("schedule").perform(context)
+    mode = LaunchConfiguration("mode").perform(context).lower().replace("+", "_")
+    duration = float(LaunchConfiguration("duration_s").perform(context))
+    on = ENABLED[mode]
+    common = {"schedule": schedule}
+    sim = {"use_sim_time": True}
+    nodes = [
+        Node(package=PACKAGE, executable="plant_simulator", name="plant_simulator",
+             namespace=NAMESPACE, parameters=[config, common, {"duration_s": duration}],
+             output="screen"),
+        Node(package=PACKAGE, executable="sensor_decoupling", name="sensor_decoupling",
+             namespace=NAMESPACE, parameters=[config, common, sim], output="screen"),
+        Node(package=PACKAGE, executable="mode_switch", name="mode_switch",
+             namespace=NAMESPACE, parameters=[config, common, sim, {"initial_mode": mode}],
+             output="screen"),
+        Node(package=PACKAGE, executable="feedforward_controller", name="ff_stage1",
+             namespace=NAMESPACE,
+             parameters=[config, common, sim, {"enabled": "ff_stage1" in on}], output="screen"),
+    ]
+    for i in range(1, NUM_STAGES + 1):
+        cid = f"fb_stage{i}"
+        nodes.append(Node(package=PACKAGE, executable="feedback_controller", name=cid,
+                          namespace=NAMESPACE,
+                          parameters=[config, common, sim, {"stage": i, "enabled": cid in on}],
+                          output="screen"))
+    return nodes
+
+
+def generate_launch_description():
+    """Declare the arguments and start the six nodes."""
+    share = get_package_share_directory(PACKAGE)
+    return LaunchDescription([
+        DeclareLaunchArgument("config", default_value=os.path.join(share, "config",
+                                                                   "table1.yaml"),
+                              description="ROS 2 params file of the system"),
+        DeclareLaunchArgument("schedule", default_value="realtime",
+                              description="realtime or lockstep"),
+        DeclareLaunchArgument("mode", default_value="passive",
+                              description="initial mode: passive fbc ffc fbc_ffc dfbc dfbc_ffc"),
+        DeclareLaunchArgument("duration_s", default_value="0.0",
+                              description="simulated seconds to run; 0 = until stopped"),
+        OpaqueFunction(function=_nodes),
+    ])

@@ -399,6 +399,7 @@ def _slow(msgtype: str, buffers: Sequence[bytes | memoryview]) -> Batch:
 
 __all__ = [
     "CLOCK", "JOINT_STATE", "STRING", "SUPPORTED", "TWIST_STAMPED", "WRENCH_STAMPED", "Batch",
-    "decode_batch", "decode_rows", "decode_string", "encode_clock", "encode_joint_state", "encode_stamped",
+    "decode_batch", "decode_rows",
+    "decode_string", "encode_clock", "encode_joint_state", "encode_stamped",
     "encode_string", "typestore",
 ]

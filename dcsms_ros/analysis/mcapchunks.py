@@ -88,7 +88,7 @@ def _decompress(data: memoryview, compression: str, size: int) -> bytes | memory
 
         return zstandard.ZstdDecompressor().decompress(bytes(data), max_output_size=size)
     if compression == "lz4":
-        import lz4.frame
+        import lz4.frame  # type: ignore[import-untyped]
 
         return bytes(lz4.frame.decompress(bytes(data)))
     raise Unsupported(f"unknown chunk compression {compression!r}")

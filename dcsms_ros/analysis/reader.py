@@ -181,17 +181,17 @@ def _read(reader: Any, path: Path, progress: Progress | None, chunk: int) -> Bag
     total = sum(c.msgcount for c in wanted.values())
     mode_log: list[tuple[int, str]] = []
 
-    def text(conn: Any, t_ns: int, raw: bytes | np.ndarray) -> None:
+    def on_text(conn: Any, t_ns: int, raw: bytes | np.ndarray) -> None:
         value = cdr.decode_string(bytes(raw))
         if conn.topic == topics.MODE:
             mode_log.append((t_ns, value.strip()))
         elif data.config_text is None:
             data.config_text = value
 
-    if not _read_chunks(reader, wanted, sinks, text, progress, total):
+    if not _read_chunks(reader, wanted, sinks, on_text, progress, total):
         mode_log.clear()
         sinks = {t: _Sink(s.conn, s.keep_log) for t, s in sinks.items()}
-        _read_messages(reader, wanted, sinks, text, progress, total, chunk)
+        _read_messages(reader, wanted, sinks, on_text, progress, total, chunk)
     if progress is not None:
         progress(total, total)
     for body, c in chosen.items():

@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     import rclpy  # imported late: `dcsms mode BAD` must fail fast, without ROS
     from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
     from std_msgs.msg import String
     from std_srvs.srv import Trigger
@@ -49,6 +50,8 @@ def run(args: argparse.Namespace) -> int:
     ctx = Context()
     rclpy.init(args=[], context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node(f"dcsms_mode_{os.getpid()}", context=ctx)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
     try:
         calls = []
         if args.reset_trip:
@@ -63,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
                       f"is `dcsms up` running in ROS_DOMAIN_ID={domain}?", file=sys.stderr)
                 return 1
             future = client.call_async(Trigger.Request())
-            rclpy.spin_until_future_complete(node, future, timeout_sec=args.timeout)
+            executor.spin_until_future_complete(future, timeout_sec=args.timeout)
             result = future.result()
             if result is None:
                 print(f"dcsms: error: no answer from {name} within {args.timeout:g} s",
@@ -78,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
                                      qos.latched())
             deadline = time.monotonic() + args.timeout
             while not got and time.monotonic() < deadline:
-                rclpy.spin_once(node, timeout_sec=0.1)
+                executor.spin_once(timeout_sec=0.1)
             if not got:
                 print(f"dcsms: error: no mode on {topics.MODE} within {args.timeout:g} s; is "
                       f"`dcsms up` running?", file=sys.stderr)
@@ -86,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
             print(got[-1])
         return 0
     finally:
+        executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
 

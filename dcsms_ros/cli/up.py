@@ -59,6 +59,8 @@ def params_document(cfg: SystemConfig, schedule: str, mode: Mode, duration_s: fl
     # empty arrays have no type in a params file; the nodes default them to empty anyway
     flat = {k: v for k, v in (cfg.params or {}).items() if not (isinstance(v, list) and not v)}
     flat["schedule"] = schedule
+    if observers:  # every node with a stream publisher holds its first lockstep answer
+        flat["wait_for_subscribers"] = list(observers)
     doc: dict[str, Any] = {"/**": {"ros__parameters": flat}}
     on = enabled_controllers(mode, n)
     per_node: dict[str, dict[str, Any]] = {
@@ -66,8 +68,6 @@ def params_document(cfg: SystemConfig, schedule: str, mode: Mode, duration_s: fl
         "sensor_decoupling": {"use_sim_time": True},
         "mode_switch": {"initial_mode": mode.value, "use_sim_time": True},
     }
-    if observers:
-        per_node["plant_simulator"]["wait_for_subscribers"] = list(observers)
     for cid in controller_ids(n):
         p: dict[str, Any] = {"enabled": cid in on, "use_sim_time": True}
         if cid.startswith("fb_"):

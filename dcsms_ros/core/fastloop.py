@@ -15,10 +15,8 @@ from __future__ import annotations
 import numba  # type: ignore[import-untyped]
 import numpy as np
 
-_JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 
-
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def _sos(b0, b1, b2, a1, a2, z, u):  # type: ignore[no-untyped-def]
     """SosFilter.step in place on ``u`` (channels,): transposed direct form II per section."""
     for i in range(b0.shape[0]):
@@ -30,7 +28,7 @@ def _sos(b0, b1, b2, a1, a2, z, u):  # type: ignore[no-untyped-def]
             u[c] = y
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def _clip(f, limit):  # type: ignore[no-untyped-def]
     """Allocator.clip in place; returns the number of clipped actuators."""
     n = 0
@@ -46,7 +44,7 @@ def _clip(f, limit):  # type: ignore[no-untyped-def]
     return n
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def _finite(v):  # type: ignore[no-untyped-def]
     for j in range(v.shape[0]):
         if not np.isfinite(v[j]):
@@ -54,7 +52,7 @@ def _finite(v):  # type: ignore[no-untyped-def]
     return True
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, noise,
               out):  # type: ignore[no-untyped-def]
     """Run samples ``k0 <= k < k1``; returns ``k1``, or the first sample with a non-finite

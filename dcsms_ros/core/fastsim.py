@@ -11,6 +11,7 @@ blocks; between blocks only the fader targets change.
 from __future__ import annotations
 
 import importlib.util
+import itertools
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -149,7 +150,7 @@ def run_fast(loop: FastLoop, steps: int, events: Sequence[tuple[int, Mode]], num
     bounds = sorted({0, steps, *range(0, steps, BLOCK), *ticks,
                      *(e for e, _ in events if 0 < e < steps)})
     ei = 0
-    for k0, k1 in zip(bounds[:-1], bounds[1:], strict=True):
+    for k0, k1 in itertools.pairwise(bounds):
         while ei < len(events) and events[ei][0] <= k0:
             loop.set_targets(enabled_controllers(events[ei][1], num_stages))
             modes.append((k0, events[ei][1].label))

@@ -15,10 +15,13 @@ the plant's own timeout covers a silent input, and a pause of the plant is not a
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.node import Node
 from std_srvs.srv import SetBool
 
@@ -29,8 +32,17 @@ from dcsms_ros.core.modes import controller_stage
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_array, wrench_msg
-from dcsms_ros.nodes.params import NodeConfig, declare_local, declare_schedule
+from dcsms_ros.nodes.params import (
+    NodeConfig,
+    declare_local,
+    declare_observed,
+    declare_schedule,
+    publishers_matched,
+)
 from dcsms_ros.nodes.runtime import Stoppable
+
+#: Longest hold of the first lockstep answer while readers match, s.
+MATCH_TIMEOUT_S = 5.0
 
 
 class ControllerNode(Node, Stoppable):
@@ -57,6 +69,11 @@ class ControllerNode(Node, Stoppable):
         self.lockstep = declare_schedule(self) == "lockstep"
         enabled = declare_local(self, "enabled", False, "Start enabled at full gain (no fade), "
                                 "as the batch engine starts its initial mode")
+        self.observed = declare_observed(self)
+        # lockstep: the first sample is answered only once the output reaches every reader
+        # (the plant retransmits it), so an observer misses nothing; the loop is not stepped
+        self._match_t0: float | None = None
+        self._matched = not self.lockstep
         cfg = self.params.cfg
         self.loop = make_controller(cfg, cid, enabled=bool(enabled))
         self.dof = cfg.plant.dof
@@ -84,6 +101,17 @@ class ControllerNode(Node, Stoppable):
                                f"{'enabled' if enabled else 'disabled'}")
 
     # -- the loop ----------------------------------------------------------------------------
+    def _match_first_sample(self, pubs: list) -> bool:
+        """Lockstep: hold the first answer until every reader is matched (at most
+        MATCH_TIMEOUT_S; an incompatible reader must not stall the graph)."""
+        if self._match_t0 is None:
+            self._match_t0 = time.monotonic()
+        self._matched = publishers_matched(self, pubs, self.observed)
+        if not self._matched and time.monotonic() - self._match_t0 > MATCH_TIMEOUT_S:
+            self.get_logger().warning("not every reader matched; answering anyway")
+            self._matched = True
+        return self._matched
+
     def _on_velocity(self, msg: TwistStamped) -> None:
         ns = stamp_ns(msg.header.stamp)
         if ns == self.last_ns and self._cache is not None:
@@ -92,6 +120,8 @@ class ControllerNode(Node, Stoppable):
             return
         if ns < self.last_ns:
             self.out_of_order += 1
+            return
+        if not self._matched and not self._match_first_sample([self.pub]):
             return
         self.last_ns = ns
         self._t_in = self.get_clock().now()
@@ -171,4 +201,5 @@ class ControllerNode(Node, Stoppable):
         self.pub_diag.publish(arr)
 
     def close(self) -> None:
-        """Nothing to flush beyond the DDS history (observers read it before exit)."""
+        """Give reliable observers a moment to receive the last commands (clean exit)."""
+        self.pub.wait_for_all_acked(Duration(seconds=0.5))

@@ -123,21 +123,35 @@ class ModeSwitchNode(Node):
         self.pub_config.publish(String(data=config_yaml(self.params.flat)))
 
     # -- switching ---------------------------------------------------------------------------
-    def _call_all(self, states: dict[str, bool], timeout_s: float) -> dict[str, tuple[bool, str]]:
-        """Call ``enable(state)`` on each controller in parallel; (ok, message) per controller."""
+    def _call_all(self, states: dict[str, bool], timeout_s: float,
+                  wait_for_service: bool = True) -> dict[str, tuple[bool, str]]:
+        """Call ``enable(state)`` on each controller in parallel; (ok, message) per controller.
+
+        A controller whose service is not there is only waited for if ``wait_for_service``
+        (a trip does not wait); its message starts with ``not available``.
+        """
         deadline = time.monotonic() + timeout_s
         out: dict[str, tuple[bool, str]] = {}
         futures = {}
-        for c, on in states.items():
-            client = self.clients_[c]
-            if not client.wait_for_service(timeout_sec=max(deadline - time.monotonic(), 0.0)):
-                out[c] = (False, f"service {topics.enable_service(c)} not available")
-                continue
-            futures[c] = client.call_async(SetBool.Request(data=on))
+        pending = list(states)
+        # every ready controller gets its request at once; the others are waited for in turn
+        while pending:
+            for c in [c for c in pending if self.clients_[c].service_is_ready()]:
+                futures[c] = self.clients_[c].call_async(SetBool.Request(data=states[c]))
+                pending.remove(c)
+            if not pending:
+                break
+            if not wait_for_service or time.monotonic() >= deadline:
+                for c in pending:
+                    out[c] = (False, f"not available (no service {topics.enable_service(c)})")
+                break
+            time.sleep(0.01)
+        # a controller that was ready gets a fair chance to answer even after a long wait
+        deadline = max(deadline, time.monotonic() + 0.25)
         for c, fut in futures.items():
-            done = threading.Event()
-            fut.add_done_callback(lambda _f, d=done: d.set())
-            if not done.wait(max(deadline - time.monotonic(), 0.0)):
+            while not fut.done() and time.monotonic() < deadline:
+                time.sleep(0.002)
+            if not fut.done():
                 fut.cancel()
                 out[c] = (False, f"no reply within {timeout_s:g} s")
             elif fut.result() is None or not fut.result().success:
@@ -164,7 +178,10 @@ class ModeSwitchNode(Node):
             res = self._call_all({c: c in want for c in involved}, self.switch_timeout_s)
             failed = [c for c in involved if not res[c][0]]
             if failed:
-                back = self._call_all({c: c in had for c in involved if res[c][0]},
+                # everyone who may have applied the request goes back (repeating a state is
+                # harmless); only a controller that never got it is left alone
+                back = self._call_all({c: c in had for c in involved
+                                       if not res[c][1].startswith("not available")},
                                       self.switch_timeout_s)
                 stuck = [c for c, r in back.items() if not r[0]]
                 msg = (f"switch to {target.label} failed: "
@@ -231,7 +248,8 @@ class ModeSwitchNode(Node):
         self.get_logger().error(f"instability trip: {reason}; latching Passive until "
                                 f"{topics.RESET_TRIP}")
         with self._switch_lock:
-            res = self._call_all(dict.fromkeys(self.controllers, False), self.switch_timeout_s)
+            res = self._call_all(dict.fromkeys(self.controllers, False), self.switch_timeout_s,
+                                 wait_for_service=False)
             self.mode = Mode.PASSIVE
             self._publish_mode()
         bad = [c for c, r in res.items() if not r[0]]

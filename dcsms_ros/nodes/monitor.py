@@ -103,9 +103,14 @@ class GraphMonitor:
                 if code is None:
                     continue
                 if kid.name == "plant_simulator" and code == 0 and expect_finish:
-                    self._print(self.status_line(), final=True)
-                    print("dcsms up: run finished", flush=True)
-                    return 0
+                    for _ in range(20):  # its last report may still be in flight
+                        if self.diag.get("plant_simulator", {}).get("finished") == "True":
+                            break
+                        self.executor.spin_once(timeout_sec=0.05)
+                    if self.diag.get("plant_simulator", {}).get("finished") == "True":
+                        self._print(self.status_line(), final=True)
+                        print("dcsms up: run finished", flush=True)
+                        return 0
                 self._print("", final=True)
                 print(f"dcsms up: error: node {kid.name} exited with status {code}"
                       + (f"; last log lines ({kid.log}):\n{_tail(kid.log)}" if kid.log else ""),

@@ -254,3 +254,34 @@ def declare_schedule(node: Node) -> str:
         raise ConfigError(f"node {node.get_name()}: schedule must be lockstep or realtime, got "
                           f"{value!r}")
     return str(value)
+
+
+def declare_observed(node: Node) -> list[str]:
+    """Declare ``wait_for_subscribers``: topics an observer outside the graph (recorder, probe)
+    must be receiving before the first lockstep sample is answered."""
+    return list(declare_local(node, "wait_for_subscribers", Parameter.Type.STRING_ARRAY,
+                              "Topics that need a subscriber outside the graph (recorder, "
+                              "probe) before the first lockstep sample"))
+
+
+#: Node names of the graph itself; a subscriber from any other node is an observer.
+GRAPH_NODES = ("plant_simulator", "sensor_decoupling", "mode_switch")
+
+
+def publishers_matched(node: Node, pubs: list, observed: list[str]) -> bool:
+    """True when each publisher has matched every reader this node's graph view shows, and
+    each observed topic among them has a reader outside the graph.
+
+    ``pub.get_subscription_count()`` is the DDS writer's own matched-reader count, so a sample
+    published after this returns True reaches every reader known so far.
+    """
+    for pub in pubs:
+        topic = pub.topic_name
+        if pub.get_subscription_count() < node.count_subscribers(topic):
+            return False
+        if topic in observed:
+            infos = node.get_subscriptions_info_by_topic(topic)
+            if not any(i.node_name not in GRAPH_NODES and not i.node_name.startswith(
+                    ("fb_stage", "ff_stage")) for i in infos):
+                return False
+    return True

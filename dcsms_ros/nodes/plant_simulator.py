@@ -32,7 +32,6 @@ from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 
@@ -51,11 +50,17 @@ from dcsms_ros.nodes.msgs import (
     twist_msg,
     wrench_array,
 )
-from dcsms_ros.nodes.params import SELECTORS, NodeConfig, declare_local, declare_schedule
+from dcsms_ros.nodes.params import (
+    GRAPH_NODES,
+    SELECTORS,
+    NodeConfig,
+    declare_local,
+    declare_observed,
+    declare_schedule,
+    publishers_matched,
+)
 from dcsms_ros.nodes.runtime import Stoppable, main_for
 
-#: Node names of the graph itself (a subscriber from any other node is an observer).
-GRAPH_NODES = ("plant_simulator", "sensor_decoupling", "mode_switch")
 #: Real time: at most this many samples are computed in one timer callback to catch up.
 MAX_BURST = 20
 #: Seconds the handshake waits after the graph looks connected, so DDS endpoints match too.
@@ -85,7 +90,7 @@ class PlantSimulatorNode(Node, Stoppable):
                               f"some of {list(controller_ids(n))}")
         # the batch engine sums in controller_ids order; so must we, bit for bit
         self.controllers = [c for c in controller_ids(n) if c in wanted]
-        self.retry_s = declare_local(self, "lockstep_retry_s", 0.1, "Lockstep: republish a "
+        self.retry_s = declare_local(self, "lockstep_retry_s", 0.2, "Lockstep: republish a "
                                      "sample when a reply is missing after this wall time [s]",
                                      read_only=False, lo=0.001, hi=60.0)
         self.absent_after = declare_local(self, "absent_after", 3, "Lockstep: consecutive "
@@ -94,9 +99,7 @@ class PlantSimulatorNode(Node, Stoppable):
         self.handshake_timeout_s = declare_local(self, "handshake_timeout_s", 10.0,
                                                  "Longest wait for the graph before sample 0 "
                                                  "[s]", lo=0.0, hi=600.0)
-        self.observed = declare_local(self, "wait_for_subscribers", Parameter.Type.STRING_ARRAY,
-                                      "Topics that need a subscriber outside the graph (recorder,"
-                                      " probe) before sample 0")
+        self.observed = declare_observed(self)
         self.publish_truth = declare_local(self, "publish_truth", True,
                                            "Publish the true velocities on /dcsms/truth/<body>")
         clock_hz = declare_local(self, "clock_rate_hz", 1000.0, "Rate of /clock (every node's "
@@ -177,6 +180,9 @@ class PlantSimulatorNode(Node, Stoppable):
             infos = self.get_subscriptions_info_by_topic(topic)
             if not any(i.node_name not in graph for i in infos):
                 out.append(f"observer of {topic}")
+        own = [self.pub_raw, self.pub_applied, *self.pub_truth]
+        if not out and not publishers_matched(self, own, self.observed):
+            out.append("DDS matching of the plant's publishers")
         return out
 
     def _handshake(self, now: float) -> None:

@@ -56,11 +56,8 @@ class Stoppable:
 def spin_until_stopped(node: Node, executor: Executor, stop: Callable[[], bool]) -> None:
     """Spin ``node`` until ``stop()`` is true, the node finished, or the context shut down."""
     executor.add_node(node)
-    try:
-        while not stop() and not getattr(node, "finished", False) and node.context.ok():
-            executor.spin_once(timeout_sec=POLL_S)
-    finally:
-        executor.remove_node(node)
+    while not stop() and not getattr(node, "finished", False) and node.context.ok():
+        executor.spin_once(timeout_sec=POLL_S)
 
 
 def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
@@ -98,8 +95,11 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
         node = factory(context=ctx)
         executor: Executor = (MultiThreadedExecutor(num_threads=4, context=ctx) if multithreaded
                               else SingleThreadedExecutor(context=ctx))
-        spin_until_stopped(node, executor, lambda: stopped["flag"])
-        executor.shutdown(timeout_sec=1.0)
+        try:
+            spin_until_stopped(node, executor, lambda: stopped["flag"])
+        finally:
+            # let callbacks still running in worker threads end before the node goes away
+            executor.shutdown(timeout_sec=2.0)
     except DcsmsError as exc:
         print(f"dcsms: error: {exc}", file=sys.stderr, flush=True)
         status = EXIT_CONFIG

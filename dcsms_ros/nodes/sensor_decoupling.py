@@ -11,10 +11,13 @@ body (counted).
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
@@ -22,8 +25,17 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_msg
-from dcsms_ros.nodes.params import SELECTORS, NodeConfig, declare_schedule
+from dcsms_ros.nodes.params import (
+    SELECTORS,
+    NodeConfig,
+    declare_observed,
+    declare_schedule,
+    publishers_matched,
+)
 from dcsms_ros.nodes.runtime import main_for
+
+#: Longest hold of the first lockstep answer while readers match, s.
+MATCH_TIMEOUT_S = 5.0
 
 
 class SensorDecouplingNode(Node):
@@ -35,6 +47,10 @@ class SensorDecouplingNode(Node):
         self.params = NodeConfig(self, SELECTORS["sensor_decoupling"])
         cfg = self.params.cfg
         lockstep = declare_schedule(self) == "lockstep"
+        self.observed = declare_observed(self)
+        # lockstep: answer the first sample only once every reader is matched (see controller)
+        self._match_t0: float | None = None
+        self._matched = not lockstep
         self.dec = Decoupler(cfg)
         self.dof = cfg.plant.dof
         self.bodies = topics.body_names(cfg.plant.num_stages)
@@ -74,6 +90,17 @@ class SensorDecouplingNode(Node):
         out = np.where(idx >= 0, v[np.maximum(idx, 0)], np.nan)
         return out
 
+    def _match_first_sample(self, pubs: list) -> bool:
+        """Lockstep: hold the first answer until every reader is matched (at most
+        MATCH_TIMEOUT_S; an incompatible reader must not stall the graph)."""
+        if self._match_t0 is None:
+            self._match_t0 = time.monotonic()
+        self._matched = publishers_matched(self, pubs, self.observed)
+        if not self._matched and time.monotonic() - self._match_t0 > MATCH_TIMEOUT_S:
+            self.get_logger().warning("not every reader matched; answering anyway")
+            self._matched = True
+        return self._matched
+
     def _on_raw(self, msg: JointState) -> None:
         ns = stamp_ns(msg.header.stamp)
         if ns == self.last_ns:
@@ -83,6 +110,8 @@ class SensorDecouplingNode(Node):
             return
         if ns < self.last_ns:
             self.out_of_order += 1
+            return
+        if not self._matched and not self._match_first_sample(self.pubs):
             return
         tw = self.dec.step(self._channels(msg))
         self.last_ns = ns
@@ -103,6 +132,11 @@ class SensorDecouplingNode(Node):
             "samples": self.samples, "repeats": self.repeats, "out_of_order": self.out_of_order,
             "nonfinite": self.dec.nonfinite, "bad_messages": self.bad_messages})]
         self.pub_diag.publish(arr)
+
+    def close(self) -> None:
+        """Give reliable observers a moment to receive the last twists (clean exit)."""
+        for pub in self.pubs:
+            pub.wait_for_all_acked(Duration(seconds=0.5))
 
 
 main = main_for(SensorDecouplingNode)

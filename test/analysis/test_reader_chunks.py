@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from synth_bag import write_bag
 
 from dcsms_ros.analysis import mcapchunks, reader
 from dcsms_ros.analysis.reader import read_bag
-from synth_bag import write_bag
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,110 @@
+"""mode_switch in-process: atomic switch, rollback when a controller is absent, trip latch."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import TwistStamped
+from node_helpers import overrides
+from rclpy.executors import MultiThreadedExecutor
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from dcsms_ros.core import topics
+from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
+from dcsms_ros.nodes.mode_switch import ModeSwitchNode
+from dcsms_ros.nodes.msgs import twist_msg
+
+
+class Graph:
+    """mode_switch + fb_stage1 + fb_stage2 (no ff_stage1) and a client node, spun in a thread."""
+
+    def __init__(self, ctx, cfg, **ms_params):
+        self.ms = ModeSwitchNode(context=ctx, parameter_overrides=overrides(
+            cfg, switch_timeout_s=0.5, **ms_params))
+        self.fb = [FeedbackControllerNode(f"fb_stage{i}", context=ctx,
+                                          parameter_overrides=overrides(cfg, stage=i))
+                   for i in (1, 2)]
+        self.client = rclpy.create_node("client", context=ctx)
+        self.modes: list[str] = []
+        self.client.create_subscription(String, topics.MODE, lambda m: self.modes.append(m.data),
+                                        qos.latched())
+        self.ex = MultiThreadedExecutor(num_threads=4, context=ctx)
+        for n in (self.ms, *self.fb, self.client):
+            self.ex.add_node(n)
+        self.thread = __import__("threading").Thread(target=self.ex.spin, daemon=True)
+        self.thread.start()
+
+    def call(self, service: str) -> Trigger.Response:
+        cli = self.client.create_client(Trigger, service)
+        assert cli.wait_for_service(timeout_sec=10.0), service
+        fut = cli.call_async(Trigger.Request())
+        deadline = time.monotonic() + 10.0
+        while not fut.done() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        return fut.result()
+
+    def wait(self, cond, timeout=10.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while not cond() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        return cond()
+
+    def close(self):
+        self.ex.shutdown(timeout_sec=2.0)
+
+
+def test_switch_and_rollback_when_a_controller_is_absent(ctx, cfg):
+    """DFBC switches; FBC+FFC without ff_stage1 fails, names it and restores DFBC everywhere."""
+    g = Graph(ctx, cfg)
+    try:
+        assert g.wait(lambda: g.modes and g.modes[-1] == "Passive")
+        r = g.call(topics.set_mode_service("dfbc"))
+        assert r.success, r.message
+        assert g.wait(lambda: g.modes[-1] == "DFBC")
+        assert [f.loop.enabled for f in g.fb] == [True, True]
+        r = g.call(topics.set_mode_service("fbc_ffc"))
+        assert not r.success
+        assert "ff_stage1" in r.message and "rolled back to DFBC" in r.message
+        # fb_stage2 had been switched off for FBC+FFC; the rollback switched it on again
+        assert [f.loop.enabled for f in g.fb] == [True, True]
+        time.sleep(0.2)
+        assert g.modes[-1] == "DFBC" and g.ms.mode.label == "DFBC"
+        r = g.call(topics.set_mode_service("passive"))
+        assert r.success and [f.loop.enabled for f in g.fb] == [False, False]
+    finally:
+        g.close()
+
+
+def test_instability_trip_latches_passive_until_reset(ctx, cfg):
+    """A large in-band oscillation on stage 1 trips to Passive, blocks switching until reset."""
+    g = Graph(ctx, cfg, initial_mode="fbc", **{"control.trip_rms_mps": 1e-4})
+    try:
+        pub = g.client.create_publisher(TwistStamped, topics.velocity_topic("stage1"),
+                                        qos.stream_pub(False))
+        assert g.wait(lambda: pub.get_subscription_count() > 0)
+        assert g.wait(lambda: g.fb[0].loop.enabled)  # reconciled to the initial mode
+        rate = cfg.plant.rate_hz
+        t0 = time.monotonic()
+        for k in range(int(0.5 * rate)):  # 0.5 s of a 10 Hz, 1 mm/s oscillation
+            pub.publish(twist_msg(np.array([1e-3 * np.sin(2 * np.pi * 10 * k / rate)]),
+                                  int(k * 1e9 / rate), "stage1"))
+            if k % 100 == 0:
+                time.sleep(0.005)
+        assert g.wait(lambda: g.ms.tripped, 5.0)
+        print(f"\ntrip latched {time.monotonic() - t0:.2f} s after the oscillation started: "
+              f"{g.ms.trip_reason}")
+        assert "stage1 velocity RMS" in g.ms.trip_reason
+        assert g.wait(lambda: g.modes[-1] == "Passive") and not g.fb[0].loop.enabled
+        r = g.call(topics.set_mode_service("fbc"))
+        assert not r.success and "reset_trip" in r.message
+        time.sleep(1.0)  # let the monitor take every sample still queued (they would re-trip)
+        r = g.call(topics.RESET_TRIP)
+        assert r.success and "trip cleared" in r.message
+        r = g.call(topics.set_mode_service("fbc"))
+        assert r.success and g.fb[0].loop.enabled
+    finally:
+        g.close()

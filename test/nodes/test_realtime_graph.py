@@ -1,0 +1,73 @@
+"""Real-time graph through the CLI: switch with `dcsms mode`, report the rate, stop with SIGINT."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from node_helpers import executor_for
+
+from dcsms_ros.core import topics
+from dcsms_ros.nodes import qos
+
+DCSMS = [sys.executable, "-m", "dcsms_ros.cli"]
+
+
+def test_realtime_graph_switches_mode_and_stops_cleanly(ctx, tmp_path):
+    """`dcsms up --realtime` steps, `dcsms mode DFBC+FFC` switches it, SIGINT exits 0."""
+    probe = rclpy.create_node("rate_probe", context=ctx)
+    plant: dict[str, str] = {}
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        for st in msg.status:
+            if st.name == "plant_simulator":
+                plant.update({kv.key: kv.value for kv in st.values})
+
+    probe.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diag, qos.status())
+    ex = executor_for(ctx, probe)
+    logs = tmp_path / "logs"
+    up = subprocess.Popen([*DCSMS, "up", "--realtime", "--log-dir", str(logs)],
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 90.0
+        while int(plant.get("sample", "0")) == 0 and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.1)
+        assert int(plant.get("sample", "0")) > 0, "the plant never stepped"
+        sw = subprocess.run([*DCSMS, "mode", "DFBC+FFC", "--timeout", "20"], check=False,
+                            capture_output=True, text=True, timeout=60)
+        assert sw.returncode == 0, sw.stdout + sw.stderr
+        assert "mode DFBC+FFC" in sw.stdout
+        now = subprocess.run([*DCSMS, "mode", "--timeout", "20"], capture_output=True, text=True,
+                             check=False,
+                             timeout=60)
+        assert now.stdout.strip() == "DFBC+FFC", now.stdout + now.stderr
+        t_end = time.monotonic() + 3.0
+        while time.monotonic() < t_end:
+            ex.spin_once(timeout_sec=0.1)
+    finally:
+        up.send_signal(signal.SIGINT)
+        out = up.communicate(timeout=60)[0]
+    assert up.returncode == 0, out
+    texts = [out] + [p.read_text() for p in logs.glob("*.log")]
+    assert not any("Traceback" in t for t in texts), out
+    print(f"\nreal time: achieved {plant.get('achieved_rate_hz')} Hz of {plant.get('rate_hz')} "
+          f"Hz at t={plant.get('sim_time_s')} s; stale events {plant.get('stale_events')}, "
+          f"overruns {plant.get('overruns')}")
+    ex.shutdown()
+
+
+def test_mode_cli_rejects_unknown_name_and_reports_missing_graph(domain):
+    """An unknown mode exits 2 listing the valid ones; no graph -> a clear error, status 1."""
+    bad = subprocess.run([*DCSMS, "mode", "SKYHOOK"], capture_output=True, text=True, timeout=60,
+                         check=False)
+    assert bad.returncode == 2
+    assert "DFBC+FFC" in bad.stderr and "Traceback" not in bad.stderr
+    gone = subprocess.run([*DCSMS, "mode", "fbc", "--timeout", "0.5"], capture_output=True,
+                          check=False,
+                          text=True, timeout=60)
+    assert gone.returncode == 1
+    assert "not available" in gone.stderr and "Traceback" not in gone.stderr
