@@ -215,7 +215,10 @@ class PlantSimulatorNode(Node, Stoppable):
             self._realtime(now)
         elif not self._waiting:
             self._pump()
-        elif now - self._t_sent > self.lockstep_timeout_s:
+        elif now - self._t_sent > (self.lockstep_timeout_s if self.sim.k else
+                                   self.handshake_timeout_s):
+            # sample 0 may wait for the whole handshake time: the other nodes hold their first
+            # answer until their publishers matched every reader (no observer misses it)
             self._lockstep_timeout()
         elif now - self._t_retx > self.retry_s:
             self.pub_raw.publish(self._raw_msg)
@@ -324,8 +327,8 @@ class PlantSimulatorNode(Node, Stoppable):
         self.get_logger().info(f"finished {self.sim.k} samples ({self.sim.t:.3f} s simulated) "
                                f"in {wall:.2f} s wall: {self.sim.k / max(wall, 1e-9):.0f} "
                                f"samples/s")
-        self._report()
         self.finish()
+        self._report()  # says finished=True: `dcsms up` tells a finished run from a crash
 
     # -- reporting ---------------------------------------------------------------------------
     def controller_state(self, c: str) -> str:
@@ -363,7 +366,7 @@ class PlantSimulatorNode(Node, Stoppable):
 
     def close(self) -> None:
         """Give reliable observers a moment to receive what was published (clean exit)."""
-        for pub in [self.pub_raw, self.pub_applied, *self.pub_truth]:
+        for pub in [self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag]:
             pub.wait_for_all_acked(Duration(seconds=0.5))
 
 
