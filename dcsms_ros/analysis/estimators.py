@@ -66,6 +66,17 @@ def choose_nperseg(fs: float, n: int) -> int:
     return int(min(nper, max(n, 1)))
 
 
+def h1_random_error(coherence: np.ndarray, averages: int) -> np.ndarray:
+    """Normalised random error of |H1| (Bendat & Piersol): sqrt(1 - g2) / (|g| sqrt(2 n_d)).
+
+    Uncorrelated output noise (here: table forces, sensor noise) leaves H1 unbiased but
+    scatters it; this is the 1-sigma relative scatter, inf where the coherence is 0.
+    """
+    g2 = np.clip(np.asarray(coherence, dtype=float), 0.0, 1.0)
+    with np.errstate(divide="ignore"):
+        return np.sqrt(1.0 - g2) / (np.sqrt(g2) * np.sqrt(2.0 * max(averages, 1)))
+
+
 def _averages(n: int, nperseg: int) -> int:
     return max((n - nperseg) // (nperseg // 2) + 1, 0)
 

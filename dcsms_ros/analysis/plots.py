@@ -23,22 +23,33 @@ def plot_transmissibility(path: Path, axis: str, curves: list[dict[str, Any]]) -
     """Estimated |v_pN/v_b| per mode (solid), analytic (dashed) and coherence below.
 
     ``curves``: dicts with ``label``, ``f`` (F,), ``h`` (F,) complex, ``coherence`` (F,),
-    optional ``f_an``/``h_an`` (analytic) and ``flagged`` [(lo, hi), ...] Hz.
+    optional ``averages`` (Welch segments), ``f_an``/``h_an`` (analytic) and ``flagged``
+    [(lo, hi), ...] Hz. Bins whose |H1| random error exceeds 10 % are drawn faint: there the
+    estimate is scatter from uncorrelated table forces, not the transfer function.
     """
+    from dcsms_ros.analysis.estimators import h1_random_error
+
     plt = _pyplot()
     fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(8, 6.5),
                                    gridspec_kw={"height_ratios": [3, 1]})
     for i, c in enumerate(curves):
         color = f"C{i}"
         sel = c["f"] > 0
-        ax1.loglog(c["f"][sel], np.abs(c["h"][sel]), color=color, label=c["label"])
+        mag = np.abs(c["h"][sel])
+        if c.get("averages"):
+            ok = h1_random_error(c["coherence"][sel], c["averages"]) <= 0.1
+            ax1.loglog(c["f"][sel], mag, color=color, lw=0.6, alpha=0.3)
+            ax1.loglog(c["f"][sel], np.where(ok, mag, np.nan), color=color, label=c["label"])
+        else:
+            ax1.loglog(c["f"][sel], mag, color=color, label=c["label"])
         if c.get("h_an") is not None:
             ax1.loglog(c["f_an"], np.abs(c["h_an"]), "--", color=color, lw=1)
         for lo, hi in c.get("flagged", []):
             ax1.axvspan(lo, hi, color=color, alpha=0.12)
         ax2.semilogx(c["f"][sel], c["coherence"][sel], color=color)
     ax1.set_ylabel("|v_p/v_b|")
-    ax1.set_title(f"Stage transmissibility, axis {axis} (dashed: analytic; shaded: >3 dB off)")
+    ax1.set_title(f"Stage transmissibility, axis {axis} (dashed: analytic; faint: random "
+                  "error > 10 %; shaded: > 3 dB off)", fontsize=10)
     ax1.grid(True, which="both", alpha=0.3)
     ax1.legend(fontsize=8)
     ax2.set_ylabel("coherence")

@@ -19,9 +19,11 @@ from dcsms_ros.analysis.segments import MIN_SEGMENT_S, SETTLE_S, Segment, align,
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import parse_mode
 
-#: Analytic and estimated transmissibility "disagree" beyond this (dB) where coherence > 0.9.
+#: Analytic and estimated transmissibility "disagree" beyond this (dB).
 DISAGREE_DB = 3.0
-COHERENCE_MIN = 0.9
+#: Bins compared with the analytic model: 1-sigma random error of |H1| at most 10 % (0.8 dB),
+#: so a 3 dB disagreement is > 3.5 sigma, not scatter.
+MAX_RANDOM_ERROR = 0.1
 COMPARE_RANGE_HZ = (0.5, 100.0)
 #: An applied force within this fraction of its limit counts as saturated.
 SATURATION_FRACTION = 0.999
@@ -215,7 +217,8 @@ def _analytic(cfg: SystemConfig | None, seg: Segment, axis: str, tfs: list[est.T
     sel = (tf.f >= COMPARE_RANGE_HZ[0]) & (tf.f <= COMPARE_RANGE_HZ[1])
     with np.errstate(divide="ignore"):
         err = 20 * np.log10(np.abs(tf.h)) - 20 * np.log10(np.abs(h_an[-1]))
-    good = sel & (tf.coherence > COHERENCE_MIN) & np.isfinite(err)
+    noise = est.h1_random_error(tf.coherence, tf.averages)
+    good = sel & (noise <= MAX_RANDOM_ERROR) & np.isfinite(err)
     bad = good & (np.abs(err) > DISAGREE_DB)
     flagged = _runs(tf.f, bad)
     js = {"compared_bins": int(good.sum()),

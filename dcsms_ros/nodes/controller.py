@@ -5,8 +5,9 @@ One sample: ``/dcsms/velocity/<body>`` (TwistStamped) -> ``loop.step`` -> ``/dcs
 publishes for every sample, zero while disabled, because the lockstep plant waits for every
 controller. A repeated stamp (lockstep retransmission) is answered from the cache; an older stamp
 is ignored. ``~/enable`` (std_srvs/SetBool) fades the loop in or out over
-``control.fade_time_s``; parameter ``enabled`` starts it at full gain, as the batch engine starts
-the controllers of its initial mode.
+``control.fade_time_s``; parameter ``enabled`` starts it at full gain in lockstep, as the batch
+engine starts the controllers of its initial mode, and fades it in from zero in real time (a
+restarted controller rejoins a running plant without a kick).
 
 Real time only: a watchdog publishes zero force while no input arrived for
 ``control.input_timeout_s`` (node clock, i.e. simulated time under ``use_sim_time``). In lockstep
@@ -75,7 +76,11 @@ class ControllerNode(Node, Stoppable):
         self._match_t0: float | None = None
         self._matched = not self.lockstep
         cfg = self.params.cfg
-        self.loop = make_controller(cfg, cid, enabled=bool(enabled))
+        # lockstep starts at full gain, as the batch engine does; real time fades in from zero,
+        # so a (re)started controller joins a running plant without a kick
+        self.loop = make_controller(cfg, cid, enabled=bool(enabled) and self.lockstep)
+        if enabled and not self.lockstep:
+            self.loop.enable(True)
         self.dof = cfg.plant.dof
         self.frame = f"stage{controller_stage(cid)}"
         self.input_timeout_s = cfg.control.input_timeout_s

@@ -141,6 +141,9 @@ class PlantSimulatorNode(Node, Stoppable):
         self._held: dict[str, tuple[np.ndarray, float]] = {}
         self._stale = dict.fromkeys(self.controllers, True)
         self.stale_events = dict.fromkeys(self.controllers, 0)
+        # when (CLOCK_MONOTONIC ns, sample) each force last went stale: the fault tests compare
+        # it with the time they killed the controller (the same clock in every process)
+        self.stale_at: dict[str, tuple[int, int]] = dict.fromkeys(self.controllers, (0, 0))
         self.overruns = 0
         self._t0 = 0.0
         # bookkeeping
@@ -313,6 +316,7 @@ class PlantSimulatorNode(Node, Stoppable):
                 stale = now - t > self.input_timeout_s
                 if stale and not self._stale[c]:
                     self.stale_events[c] += 1
+                    self.stale_at[c] = (time.monotonic_ns(), self.sim.k)
                     self.get_logger().warning(f"force of {c} is stale (> "
                                               f"{self.input_timeout_s:g} s): zero",
                                               throttle_duration_sec=2.0)
@@ -360,7 +364,11 @@ class PlantSimulatorNode(Node, Stoppable):
         arr.status = [status("plant_simulator", level, msg, values)] + [
             status(f"plant_simulator/{c}", DiagnosticStatus.OK if s == "ok" else
                    DiagnosticStatus.WARN, s, {"timeouts": self.faults[c],
-                                              "stale_events": self.stale_events[c]})
+                                              "stale_events": self.stale_events[c],
+                                              "stale_at_mono_ns": self.stale_at[c][0],
+                                              "stale_at_sample": self.stale_at[c][1],
+                                              "last_input_mono_ns": int(self._held.get(
+                                                  c, (None, 0.0))[1] * 1e9)})
             for c, s in states.items()]
         self.pub_diag.publish(arr)
 

@@ -56,8 +56,13 @@ class Stoppable:
 def spin_until_stopped(node: Node, executor: Executor, stop: Callable[[], bool]) -> None:
     """Spin ``node`` until ``stop()`` is true, the node finished, or the context shut down."""
     executor.add_node(node)
+    hot = getattr(node, "hot", None)
+    if hot is not None:
+        hot.start()
     while not stop() and not getattr(node, "finished", False) and node.context.ok():
         executor.spin_once(timeout_sec=POLL_S)
+        if hot is not None and hot.error is not None:
+            raise hot.error  # a failing hot-path handler ends the node as a callback would
 
 
 def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
@@ -107,6 +112,8 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
         pass
     finally:
         if node is not None:
+            if getattr(node, "hot", None) is not None:
+                node.hot.stop()  # the hot thread ends before the node's entities go
             close = getattr(node, "close", None)
             if close is not None:
                 close()

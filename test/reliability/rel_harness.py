@@ -1,0 +1,202 @@
+"""Helpers of the reliability tests: a node graph whose processes the test can kill, a probe
+node that records the streams, and the results file the README table is made from."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import rclpy
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import WrenchStamped
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+
+from dcsms_ros.cli.up import Child, child_env, graph_children, params_document
+from dcsms_ros.core import topics
+from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.modes import Mode
+from dcsms_ros.nodes import qos
+
+REPO = Path(__file__).resolve().parents[2]
+TABLE1 = REPO / "config" / "table1.yaml"
+DCSMS = [sys.executable, "-m", "dcsms_ros.cli"]
+
+
+def results_file() -> Path:
+    """Where the tests append their figures (``DCSMS_RELIABILITY_RESULTS`` or a temp dir)."""
+    env = os.environ.get("DCSMS_RELIABILITY_RESULTS")
+    path = Path(env) if env else Path(tempfile.gettempdir()) / "dcsms-reliability.jsonl"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def report(row: str, fault: str, result: str, figure: str, **data: Any) -> None:
+    """Append one JSON line (``row`` orders the README table) to :func:`results_file`."""
+    line = {"row": row, "fault": fault, "result": result, "figure": figure,
+            "time": time.strftime("%Y-%m-%dT%H:%M:%S"), **data}
+    with results_file().open("a") as f:
+        f.write(json.dumps(line) + "\n")
+    print(f"\n[{row}] {fault}: {result} ({figure})")
+
+
+def mono_ns() -> int:
+    """CLOCK_MONOTONIC in ns: the same clock in every process on this host."""
+    return time.monotonic_ns()
+
+
+class Graph:
+    """The ``dcsms up`` node processes, started by the test so it can signal each one."""
+
+    def __init__(self, cfg: SystemConfig, tmp: Path, schedule: str = "realtime",
+                 mode: Mode = Mode.DFBC_FFC, duration_s: float = 0.0,
+                 extra: dict[str, dict[str, Any]] | None = None) -> None:
+        self.cfg, self.mode, self.tmp = cfg, mode, tmp
+        doc = params_document(cfg, schedule, mode, duration_s, [])
+        for node, values in (extra or {}).items():
+            doc.setdefault(f"{topics.NAMESPACE}/{node}", {"ros__parameters": {}})
+            doc[f"{topics.NAMESPACE}/{node}"]["ros__parameters"].update(values)
+        self.params = tmp / "params.yaml"
+        self.params.write_text(yaml.safe_dump(doc, sort_keys=False))
+        self.kids = {k.name: k for k in graph_children(cfg.plant.num_stages, self.params)}
+        self.env = child_env()
+        for kid in self.kids.values():
+            self.start(kid.name)
+
+    def start(self, name: str, extra_args: tuple[str, ...] = ()) -> None:
+        """(Re)start node ``name``; its log is appended to ``<tmp>/<name>.log``."""
+        kid: Child = self.kids[name]
+        kid.log = self.tmp / f"{name}.log"
+        with kid.log.open("ab") as out:
+            kid.proc = subprocess.Popen([*kid.argv, *extra_args], stdout=out,
+                                        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                        env=self.env, start_new_session=True)
+
+    def pid(self, name: str) -> int:
+        proc = self.kids[name].proc
+        assert proc is not None
+        return proc.pid
+
+    def kill(self, name: str, sig: int = signal.SIGKILL) -> int:
+        """Send ``sig`` to node ``name``; returns the monotonic time (ns) just before."""
+        t = mono_ns()
+        os.kill(self.pid(name), sig)
+        if sig == signal.SIGKILL:
+            self.kids[name].proc.wait(10)  # type: ignore[union-attr]
+        return t
+
+    def logs(self) -> str:
+        return "\n".join(p.read_text(errors="replace") for p in self.tmp.glob("*.log"))
+
+    def stop(self) -> dict[str, int | None]:
+        """SIGINT every node, then SIGKILL after 10 s; exit status per node."""
+        alive = [k for k in self.kids.values() if k.proc and k.proc.poll() is None]
+        for k in alive:
+            os.kill(k.proc.pid, signal.SIGCONT)  # type: ignore[union-attr]
+            k.proc.send_signal(signal.SIGINT)  # type: ignore[union-attr]
+        out: dict[str, int | None] = {}
+        for k in self.kids.values():
+            try:
+                out[k.name] = k.proc.wait(10) if k.proc else None
+            except subprocess.TimeoutExpired:
+                k.proc.kill()  # type: ignore[union-attr]
+                out[k.name] = k.proc.wait(5)  # type: ignore[union-attr]
+        return out
+
+
+def _deep(depth: int = 5000) -> QoSProfile:
+    return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.RELIABLE)
+
+
+class Probe:
+    """A node in the test process that records applied forces, commands, diagnostics, mode.
+
+    Spun in a background thread; every list holds ``(recv_mono_ns, stamp_ns, values)``.
+    """
+
+    def __init__(self, ctx: Context, forces: tuple[str, ...] = ()) -> None:
+        self.node = rclpy.create_node(f"reliability_probe_{os.getpid()}", context=ctx)
+        self.lock = threading.Lock()
+        self.applied: list[tuple[int, int, tuple[float, ...]]] = []
+        self.forces: dict[str, list[tuple[int, int, tuple[float, ...]]]] = {
+            c: [] for c in forces}
+        self.diag: dict[str, dict[str, str]] = {}
+        self.diag_msgs: dict[str, str] = {}
+        self.diag_log: list[tuple[int, str, str, dict[str, str]]] = []
+        self.modes: list[tuple[int, str]] = []
+        nd = self.node
+        nd.create_subscription(JointState, topics.ACTUATORS_APPLIED, self._on_applied, _deep())
+        for c in self.forces:
+            nd.create_subscription(WrenchStamped, topics.force_topic(c),
+                                   lambda m, c=c: self._on_force(c, m), _deep())
+        nd.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diag, _deep(100))
+        nd.create_subscription(String, topics.MODE, self._on_mode, qos.latched())
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.executor.add_node(nd)
+        self._run = True
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        while self._run:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def _on_applied(self, m: JointState) -> None:
+        ns = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+        with self.lock:
+            self.applied.append((mono_ns(), ns, tuple(m.effort)))
+
+    def _on_force(self, c: str, m: WrenchStamped) -> None:
+        ns = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+        f, t = m.wrench.force, m.wrench.torque
+        with self.lock:
+            self.forces[c].append((mono_ns(), ns, (f.x, f.y, f.z, t.x, t.y, t.z)))
+
+    def _on_diag(self, m: DiagnosticArray) -> None:
+        with self.lock:
+            for st in m.status:
+                values = {kv.key: kv.value for kv in st.values}
+                self.diag[st.name] = values
+                self.diag_msgs[st.name] = st.message
+                self.diag_log.append((mono_ns(), st.name, st.message, values))
+
+    def _on_mode(self, m: String) -> None:
+        with self.lock:
+            self.modes.append((mono_ns(), m.data))
+
+    def value(self, node: str, key: str, default: str = "") -> str:
+        with self.lock:
+            return self.diag.get(node, {}).get(key, default)
+
+    def wait(self, cond: Callable[[], bool], timeout: float, what: str) -> None:
+        """Wait for ``cond()`` (polled every 20 ms); fail with ``what`` after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while not cond():
+            assert time.monotonic() < deadline, f"timed out after {timeout:g} s: {what}"
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        self._run = False
+        self.thread.join(5)
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+
+
+def call(args: list[str], timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+    """Run ``dcsms ARGS`` to completion."""
+    return subprocess.run([*DCSMS, *args], capture_output=True, text=True, timeout=timeout,
+                          check=False)

@@ -1,0 +1,99 @@
+"""kill -9 of a controller in a real-time graph: its force is zero within 20 ms, then it rejoins."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rel_harness import Graph, Probe, report
+
+from dcsms_ros.core.modes import Mode
+
+#: The plant must apply zero force from a dead controller this soon after the kill, s.
+SAFE_WITHIN_S = 0.020
+# victim -> (mode, its actuator, the other stage's actuator, a loop sharing its stage or None)
+CASES = {
+    "fb_stage1": (Mode.DFBC, 0, 1, None),
+    "fb_stage2": (Mode.DFBC_FFC, 1, 0, None),
+    "ff_stage1": (Mode.DFBC_FFC, 0, 1, "fb_stage1"),
+}
+NS = 1_000_000_000
+
+
+def _series(probe: Probe, act: int, k0: int, k1: int, rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """(sample index, force) of one actuator for samples k0 <= k < k1, in stamp order."""
+    with probe.lock:
+        rows = [(int(round(ns * rate / NS)), f[act]) for _, ns, f in probe.applied]
+    rows = sorted(r for r in rows if k0 <= r[0] < k1)
+    arr = np.array(rows, dtype=float).reshape(-1, 2)
+    return arr[:, 0].astype(int), arr[:, 1]
+
+
+def _max_step(k: np.ndarray, f: np.ndarray) -> float:
+    """Largest change between consecutive samples (gaps, e.g. overruns, skipped)."""
+    ok = np.diff(k) == 1
+    return float(np.abs(np.diff(f))[ok].max()) if ok.any() else 0.0
+
+
+@pytest.mark.parametrize("victim", sorted(CASES))
+def test_killed_controller_is_zeroed_then_rejoins_without_kick(victim, ctx, cfg, tmp_path):
+    """kill -9 of a controller: zero force within 20 ms, degraded reported, no kick on restart."""
+    mode, act, other, sharer = CASES[victim]
+    rate = cfg.plant.rate_hz
+    probe = Probe(ctx, forces=(sharer,) if sharer else ())
+    graph = Graph(cfg, tmp_path, mode=mode)
+    try:
+        state = f"plant_simulator/{victim}"
+        probe.wait(lambda: float(probe.value("plant_simulator", "sim_time_s", "0")) > 2.0,
+                   90.0, "plant running for 2 s of simulated time")
+        probe.wait(lambda: probe.value(victim, "gain") == "1.000", 10.0, f"{victim} faded in")
+        t_kill = graph.kill(victim)
+        probe.wait(lambda: int(probe.value(state, "stale_at_mono_ns", "0")) > t_kill, 10.0,
+                   f"the plant marks {victim} stale")
+        probe.wait(lambda: victim in probe.diag_msgs.get("plant_simulator", "")
+                   and "degraded" in probe.diag_msgs["plant_simulator"], 5.0,
+                   "plant diagnostics report the degraded state")
+        latency_s = (int(probe.value(state, "stale_at_mono_ns")) - t_kill) / 1e9
+        last_in_s = (int(probe.value(state, "last_input_mono_ns")) - t_kill) / 1e9
+        print("DEBUG last input after kill", last_in_s, probe.diag.get("plant_simulator"))
+        k_stale = int(probe.value(state, "stale_at_sample"))
+        degraded_msg = probe.diag_msgs["plant_simulator"]
+        probe.wait(lambda: int(probe.value("plant_simulator", "sample", "0")) > k_stale + 2000,
+                   30.0, "the plant runs on for 1 s after the fault")
+        k_before, f_before = _series(probe, act, k_stale - 3000, k_stale, rate)
+        k_after, f_after = _series(probe, act, k_stale, k_stale + 2000, rate)
+        _, f_other = _series(probe, other, k_stale, k_stale + 2000, rate)
+        assert len(f_before) > 1000 and np.abs(f_before).max() > 0.0, "no force before the kill"
+        assert len(f_after) > 1000, "applied stream missing after the fault"
+        if sharer is None:
+            assert np.all(f_after == 0.0), f"{victim}'s force still applied after stale"
+        else:  # the stage's force is now exactly the other loop's command
+            with probe.lock:
+                allowed = {f[2] for _, _, f in probe.forces[sharer]}
+            assert all(x in allowed for x in f_after), f"{victim}'s force still applied"
+        assert np.abs(f_other).max() > 0.0, "the other loops stopped"
+        steady = _max_step(k_before[:-40], f_before[:-40])
+        # restart with the same command line (enabled: true): it must fade in, not kick
+        graph.start(victim)
+        probe.wait(lambda: probe.diag_msgs.get(state) == "ok"
+                   and probe.value(victim, "gain") == "1.000", 60.0, f"{victim} rejoined")
+        k_end = int(probe.value("plant_simulator", "sample"))
+        k_re, f_re = _series(probe, act, k_stale + 2000, k_end, rate)
+        if sharer is None:
+            first = int(np.flatnonzero(f_re != 0.0)[0])
+            k_re, f_re = k_re[max(first - 1, 0):], f_re[max(first - 1, 0):]
+        rejoin_step = _max_step(k_re, f_re)
+        full = float(np.abs(f_before).max())
+    finally:
+        codes = graph.stop()
+        probe.close()
+    report(f"1-{victim}", f"kill -9 {victim} (real time, {mode.label})",
+           f"zero force after {latency_s * 1e3:.1f} ms; '{degraded_msg}'; restart fades in",
+           f"{latency_s * 1e3:.1f} ms to zero force; rejoin max step {rejoin_step:.3g} N "
+           f"(steady {steady:.3g} N, |F| up to {full:.3g} N)",
+           latency_s=latency_s, rejoin_step_n=rejoin_step, steady_step_n=steady, max_force_n=full)
+    assert latency_s <= SAFE_WITHIN_S, f"force zeroed only after {latency_s * 1e3:.1f} ms"
+    # a kick is a jump of the size of the force itself; the fade-in keeps steps at the size of
+    # the steady running (noise and loop dynamics) plus 10 % of the full force
+    assert rejoin_step <= 2.0 * steady + 0.1 * full, (rejoin_step, steady, full)
+    assert all(c == 0 for n, c in codes.items() if n != victim), codes
+    assert "Traceback" not in graph.logs()
