@@ -145,12 +145,12 @@ def _graph(args: argparse.Namespace) -> int:
     """The ROS graph in lockstep, recorded: ``dcsms up --lockstep --record OUT``.
 
     ``--seed`` becomes ``--set disturbance.seed=N`` (the batch engine's default seed too). The
-    graph cannot yet take a mode schedule or a recorded ground, so those are refused.
+    ``--ground-from`` becomes the plant's ``ground_from`` parameter. The graph cannot take a
+    mode schedule (switches go through the services at wall-clock times), so that is refused.
     """
     if importlib.util.find_spec("dcsms_ros.cli.up") is None:
         raise DcsmsError("--engine graph: not available (needs `dcsms up`); use --engine batch")
-    for flag, value in (("--schedule", args.schedule), ("--ground-from", args.ground_from),
-                        ("--clock", args.clock)):
+    for flag, value in (("--schedule", args.schedule), ("--clock", args.clock)):
         if value:
             raise DcsmsError(f"--engine graph: {flag} is not supported yet; use --engine batch")
     if args.storage != "mcap":
@@ -165,6 +165,8 @@ def _graph(args: argparse.Namespace) -> int:
         argv += ["--set", o]
     if args.seed is not None:
         argv += ["--set", f"disturbance.seed={args.seed}"]
+    if args.ground_from:
+        argv += ["--ground-from", args.ground_from]
     t0 = time.perf_counter()
     status = main(argv)
     if status == 0:

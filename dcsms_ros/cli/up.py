@@ -53,7 +53,7 @@ def stream_topics(n: int) -> list[str]:
 
 
 def params_document(cfg: SystemConfig, schedule: str, mode: Mode, duration_s: float,
-                    observers: list[str]) -> dict[str, Any]:
+                    observers: list[str], ground_from: str = "") -> dict[str, Any]:
     """The params file of one run: shared configuration plus per-node settings."""
     n = cfg.plant.num_stages
     # empty arrays have no type in a params file; the nodes default them to empty anyway
@@ -64,7 +64,7 @@ def params_document(cfg: SystemConfig, schedule: str, mode: Mode, duration_s: fl
     doc: dict[str, Any] = {"/**": {"ros__parameters": flat}}
     on = enabled_controllers(mode, n)
     per_node: dict[str, dict[str, Any]] = {
-        "plant_simulator": {"duration_s": float(duration_s)},
+        "plant_simulator": {"duration_s": float(duration_s), "ground_from": ground_from},
         "sensor_decoupling": {"use_sim_time": True},
         "mode_switch": {"initial_mode": mode.value, "use_sim_time": True},
     }
@@ -157,6 +157,9 @@ def register(subparsers: Any) -> None:
                    help="stop after S seconds of simulated time (default: until Ctrl-C)")
     p.add_argument("--record", type=Path, default=None, metavar="OUT",
                    help="record every /dcsms topic into the bag directory OUT")
+    p.add_argument("--ground-from", default="", metavar="BAG[:TOPIC]",
+                   help="replay a recorded ground velocity (TwistStamped, resampled to the "
+                   "control rate) instead of white noise")
     p.add_argument("--wait-for-subscribers", nargs="+", default=[], metavar="TOPIC",
                    help="before the first sample, wait for a subscriber outside the graph on "
                    "each TOPIC (e.g. a probe)")
@@ -176,6 +179,11 @@ def run(args: argparse.Namespace) -> int:
         raise DcsmsError(f"--duration {args.duration}: must be > 0")
     if args.record is not None and args.record.exists():
         raise DcsmsError(f"--record {args.record}: exists already, not overwriting")
+    if args.ground_from:  # fail here with one line, not later inside the plant process
+        from dcsms_ros.analysis.replay import load_ground, parse_ground_spec
+
+        bag, topic = parse_ground_spec(args.ground_from)
+        load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     log_dir = args.log_dir or Path(tempfile.mkdtemp(prefix="dcsms-up-"))
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -190,7 +198,8 @@ def run(args: argparse.Namespace) -> int:
             observers += stream_topics(n)  # lockstep must not outrun the recorder's start
     params_file = log_dir / "params.yaml"
     params_file.write_text(yaml.safe_dump(params_document(
-        cfg, args.schedule, mode, args.duration or 0.0, observers), sort_keys=False))
+        cfg, args.schedule, mode, args.duration or 0.0, observers, args.ground_from),
+        sort_keys=False))
     graph = graph_children(n, params_file)
     stop_flag = {"signal": 0}
 

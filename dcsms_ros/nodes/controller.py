@@ -16,6 +16,7 @@ the plant's own timeout covers a silent input, and a pause of the plant is not a
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -32,6 +33,7 @@ from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.modes import controller_stage
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_array, wrench_msg
 from dcsms_ros.nodes.params import (
     NodeConfig,
@@ -66,7 +68,10 @@ class ControllerNode(Node, Stoppable):
                               f"'{cid}' (add --ros-args -r __node:={cid}) so that its enable "
                               f"service is {topics.enable_service(cid)}")
         self.cid = cid
-        self.params = NodeConfig(self, select, self._on_change)
+        # the hot thread runs _on_velocity; executor callbacks touching the loop take the lock
+        self._lock = threading.RLock()
+        self.hot = HotPath(self, self._lock)
+        self.params = NodeConfig(self, select, self._on_change_locked)
         self.lockstep = declare_schedule(self) == "lockstep"
         enabled = declare_local(self, "enabled", False, "Start enabled at full gain (no fade), "
                                 "as the batch engine starts its initial mode")
@@ -87,8 +92,8 @@ class ControllerNode(Node, Stoppable):
         self.pub = self.create_publisher(WrenchStamped, topics.force_topic(cid),
                                          qos.stream_pub(self.lockstep))
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
-        self.create_subscription(TwistStamped, topics.velocity_topic(body), self._on_velocity,
-                                 qos.stream_sub(self.lockstep))
+        self.hot.subscribe(TwistStamped, topics.velocity_topic(body), self._on_velocity,
+                           qos.stream_sub(self.lockstep))
         self.create_service(SetBool, "~/enable", self._on_enable)
         self._zero = np.zeros(self.dof)
         self.last_ns = -1
@@ -104,6 +109,7 @@ class ControllerNode(Node, Stoppable):
         self.get_logger().info(f"{cid}: input {topics.velocity_topic(body)}, output "
                                f"{topics.force_topic(cid)}, "
                                f"{'enabled' if enabled else 'disabled'}")
+        self.hot.start()
 
     # -- the loop ----------------------------------------------------------------------------
     def _match_first_sample(self, pubs: list) -> bool:
@@ -151,6 +157,10 @@ class ControllerNode(Node, Stoppable):
             self._seen = seen
 
     def _watchdog(self) -> None:
+        with self._lock:
+            self._watchdog_locked()
+
+    def _watchdog_locked(self) -> None:
         if self._t_in is None:
             return
         now = self.get_clock().now()
@@ -164,8 +174,9 @@ class ControllerNode(Node, Stoppable):
         self.pub.publish(wrench_msg(self._zero, now.nanoseconds, self.frame))
 
     def _on_enable(self, request: SetBool.Request, response: SetBool.Response):
-        was = self.loop.enabled
-        self.loop.enable(bool(request.data))
+        with self._lock:
+            was = self.loop.enabled
+            self.loop.enable(bool(request.data))
         word = {True: "enabled", False: "disabled"}
         response.success = True
         response.message = (f"{self.cid} {word[bool(request.data)]} (was {word[was]}; fade "
@@ -174,6 +185,10 @@ class ControllerNode(Node, Stoppable):
         return response
 
     # -- parameters --------------------------------------------------------------------------
+    def _on_change_locked(self, cfg: SystemConfig, changed: set[str]) -> None:
+        with self._lock:
+            self._on_change(cfg, changed)
+
     def _on_change(self, cfg: SystemConfig, changed: set[str]) -> None:
         """Rebuild the loop from the new tuning, keeping what state can be kept."""
         self.input_timeout_s = cfg.control.input_timeout_s

@@ -18,6 +18,7 @@ be created detached and emptied in batches by :meth:`HotPath.drain` from a perio
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import traceback
@@ -120,9 +121,15 @@ class HotPath:
             return
         self._guard = self.node.create_guard_condition(lambda: None,
                                                        callback_group=self._group)
+        self.node.context.on_shutdown(self._on_shutdown)
         self._thread = threading.Thread(target=self._run, name=f"hot-{self.node.get_name()}",
                                         daemon=True)
         self._thread.start()
+
+    def wake(self) -> None:
+        """Make the thread run ``tick`` now (e.g. when stepping starts)."""
+        if self._guard is not None:
+            self._guard.trigger()
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Ask the thread to end and wait for it (idempotent)."""
@@ -133,11 +140,17 @@ class HotPath:
             self._thread.join(timeout_s)
             self._thread = None
 
+    def _on_shutdown(self) -> None:
+        self._stop = True
+        if self._guard is not None:
+            with contextlib.suppress(Exception):  # the context may be gone already
+                self._guard.trigger()
+
     def _run(self) -> None:
         try:
             self._loop()
-        except BaseException as exc:  # surfaced by the spin loop (runtime.spin_until_stopped)
-            if not self._stop:
+        except BaseException as exc:  # noqa: BLE001 - re-raised by runtime.spin_until_stopped
+            if not self._stop and self.node.context.ok():
                 self.error = exc
                 self.node.get_logger().error(f"hot path failed:\n{traceback.format_exc()}")
 

@@ -24,6 +24,7 @@ topic a subscriber, and each topic in ``wait_for_subscribers`` a subscriber outs
 from __future__ import annotations
 
 import math
+import threading
 import time
 
 import numpy as np
@@ -41,6 +42,7 @@ from dcsms_ros.core.modes import controller_ids
 from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import (
     joint_state,
     sample_ns,
@@ -102,12 +104,19 @@ class PlantSimulatorNode(Node, Stoppable):
         self.observed = declare_observed(self)
         self.publish_truth = declare_local(self, "publish_truth", True,
                                            "Publish the true velocities on /dcsms/truth/<body>")
-        clock_hz = declare_local(self, "clock_rate_hz", 1000.0, "Rate of /clock (every node's "
-                                 "sim time); lower than plant.rate_hz saves a callback per "
-                                 "sample in every node [Hz]", lo=1.0, hi=1e5)
+        clock_hz = declare_local(self, "clock_rate_hz", 100.0, "Rate of /clock (every node's "
+                                 "sim time, used only by timers, logs and the real-time "
+                                 "watchdog; stamps carry the sample time): each /clock message "
+                                 "costs a callback in every node [Hz]", lo=1.0, hi=1e5)
+        self.timing_file = declare_local(self, "timing_file", "", "Benchmarks: write the "
+                                         "wall time of every sample and the force latencies "
+                                         "to this .npz at exit; empty: off")
         period = declare_local(self, "status_period_s", 1.0, "Diagnostics period [s]",
                                lo=0.05, hi=60.0)
-        self.sim = PlantSimulator(cfg)
+        ground_from = declare_local(self, "ground_from", "", "Replay the ground velocity of "
+                                    "this bag (BAG or BAG:TOPIC, resampled to plant.rate_hz) "
+                                    "instead of white noise; empty: white noise")
+        self.sim = PlantSimulator(cfg, ground=_replayed_ground(ground_from, cfg))
         self.dof = cfg.plant.dof
         self.rate = cfg.plant.rate_hz
         self.bodies = topics.body_names(n)
@@ -124,9 +133,16 @@ class PlantSimulatorNode(Node, Stoppable):
                           for b in self.bodies] if self.publish_truth else []
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         sub_qos = qos.stream_sub(self.lockstep)
+        # forces are taken by the hot thread (hotpath.py); the executor keeps handshake,
+        # lockstep timeouts/retransmissions and reports, under the same lock
+        self._lock = threading.RLock()
+        self.hot = HotPath(self, self._lock)
         for cid in self.controllers:
-            self.create_subscription(WrenchStamped, topics.force_topic(cid),
-                                     lambda m, c=cid: self._on_force(c, m), sub_qos)
+            self.hot.subscribe(WrenchStamped, topics.force_topic(cid),
+                               lambda m, c=cid: self._on_force(c, m), sub_qos)
+        self._t_pub: list[int] = []  # timing_file: monotonic ns of each sample's publication
+        self._lat: dict[str, list[int]] = {c: [] for c in self.controllers}
+        self._cpu = [0.0, 0.0]
         self._zero = np.zeros(self.dof)
         # lockstep state
         self._ns = 0
@@ -154,13 +170,17 @@ class PlantSimulatorNode(Node, Stoppable):
         self.achieved_hz = 0.0
         self._nonfinite_seen = 0
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        tick = 1.0 / self.rate if not self.lockstep else 0.005
-        self._tick_timer = self.create_timer(tick, self._tick, clock=steady)
+        # real time steps on the hot thread (set_tick) unless the hot path is off
+        tick = 1.0 / self.rate if not self.lockstep and not self.hot.on else 0.005
+        self._tick_timer = self.create_timer(tick, self._tick_locked, clock=steady)
+        if not self.lockstep:
+            self.hot.set_tick(self._hot_tick)
         self.create_timer(period, self._report, clock=steady)
         self.get_logger().info(
             f"{self.schedule} at {self.rate:g} Hz, {n} stages ({cfg.plant.fidelity}), "
             f"controllers {self.controllers}, {len(self.channel_names)} channels, "
             f"{self.sim.num_actuators} actuators, seed {cfg.disturbance.seed}")
+        self.hot.start()
 
     # -- parameters ------------------------------------------------------------------------
     def _timeouts(self, cfg: SystemConfig) -> None:
@@ -202,10 +222,23 @@ class PlantSimulatorNode(Node, Stoppable):
             return
         self.started = True
         self._t0 = now
+        self._cpu[0] = time.process_time()
         self._rate_mark = (self.sim.k, now)
+        self.hot.wake()
         self.get_logger().info("graph connected: stepping")
 
     # -- stepping ----------------------------------------------------------------------------
+    def _tick_locked(self) -> None:
+        with self._lock:
+            self._tick()
+
+    def _hot_tick(self) -> float | None:
+        """Real time on the hot thread: step what is due; seconds until the next sample."""
+        if not self.started or self.finished:
+            return None
+        self._realtime(time.monotonic())
+        return self._t0 + self.sim.k / self.rate - time.monotonic()
+
     def _tick(self) -> None:
         now = time.monotonic()
         if self.finished:
@@ -215,7 +248,8 @@ class PlantSimulatorNode(Node, Stoppable):
             if not self.started:
                 return
         if not self.lockstep:
-            self._realtime(now)
+            if not self.hot.on:
+                self._realtime(now)
         elif not self._waiting:
             self._pump()
         elif now - self._t_sent > (self.lockstep_timeout_s if self.sim.k else
@@ -232,6 +266,8 @@ class PlantSimulatorNode(Node, Stoppable):
         """Publish sample k: clock, true velocities, raw channels (engine order)."""
         ns = sample_ns(self.sim.k, self.rate)
         self._ns = ns
+        if self.timing_file:
+            self._t_pub.append(time.monotonic_ns())
         truth = self.sim.truth().copy()
         raw = self.sim.measure()
         stamp = to_stamp(ns)
@@ -271,6 +307,10 @@ class PlantSimulatorNode(Node, Stoppable):
 
     def _on_force(self, cid: str, msg: WrenchStamped) -> None:
         w = wrench_array(msg, self.dof)
+        if self.timing_file:  # sensor-to-force latency: sample publication -> force arrival
+            k = round(stamp_ns(msg.header.stamp) * self.rate / 1e9)
+            if 0 <= k < len(self._t_pub):
+                self._lat[cid].append(time.monotonic_ns() - self._t_pub[k])
         if not self.lockstep:
             self._held[cid] = (w, time.monotonic())
             return
@@ -328,6 +368,7 @@ class PlantSimulatorNode(Node, Stoppable):
 
     def _done(self) -> None:
         wall = time.monotonic() - self._t0
+        self._cpu[1] = time.process_time()
         self.get_logger().info(f"finished {self.sim.k} samples ({self.sim.t:.3f} s simulated) "
                                f"in {wall:.2f} s wall: {self.sim.k / max(wall, 1e-9):.0f} "
                                f"samples/s")
@@ -374,11 +415,27 @@ class PlantSimulatorNode(Node, Stoppable):
 
     def close(self) -> None:
         """Give reliable observers a moment to receive what was published (clean exit)."""
+        if self.timing_file:
+            np.savez(self.timing_file, t_pub_ns=np.asarray(self._t_pub, dtype=np.int64),
+                     cpu_s=np.asarray(self._cpu), rate_hz=self.rate, overruns=self.overruns,
+                     **{f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
+                        for c, v in self._lat.items()})
         for pub in [self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag]:
             pub.wait_for_all_acked(Duration(seconds=0.5))
+
+
+def _replayed_ground(spec: str, cfg: SystemConfig) -> np.ndarray | None:
+    """Ground velocity (K, dof) read from ``spec`` (``BAG[:TOPIC]``), or None for white noise."""
+    if not spec:
+        return None
+    from dcsms_ros.analysis.replay import load_ground, parse_ground_spec
+
+    bag, topic = parse_ground_spec(spec)
+    return load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)
 
 
 main = main_for(PlantSimulatorNode)
 
 if __name__ == "__main__":
     main()
+

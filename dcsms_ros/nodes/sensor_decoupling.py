@@ -11,6 +11,7 @@ body (counted).
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -24,6 +25,7 @@ from sensor_msgs.msg import JointState
 from dcsms_ros.core import topics
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_msg
 from dcsms_ros.nodes.params import (
     SELECTORS,
@@ -59,8 +61,8 @@ class SensorDecouplingNode(Node):
         self.pubs = [self.create_publisher(TwistStamped, topics.velocity_topic(b),
                                            qos.stream_pub(lockstep)) for b in self.bodies]
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
-        self.create_subscription(JointState, topics.SENSORS_RAW, self._on_raw,
-                                 qos.stream_sub(lockstep))
+        self.hot = HotPath(self, threading.Lock())  # _on_raw runs on the hot thread
+        self.hot.subscribe(JointState, topics.SENSORS_RAW, self._on_raw, qos.stream_sub(lockstep))
         self.last_ns = -1
         self._cache: list[TwistStamped] = []
         self.samples = 0
@@ -68,6 +70,7 @@ class SensorDecouplingNode(Node):
         self.out_of_order = 0
         self.bad_messages = 0
         self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.hot.start()
 
     def _channels(self, msg: JointState) -> np.ndarray:
         """Channel velocities in the decoupler's order (NaN where missing)."""
