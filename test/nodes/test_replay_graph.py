@@ -23,7 +23,7 @@ def test_graph_replays_a_recorded_ground_like_the_batch_engine(domain, cfg, tmp_
     out = tmp_path / "replayed"
     cmd = [sys.executable, "-m", "dcsms_ros.cli", "sim", "--engine", "graph", "--mode", "FBC",
            "--duration", str(DURATION_S), "--ground-from", str(floor), "--out", str(out)]
-    run = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=240, check=False)
     assert run.returncode == 0, run.stdout + run.stderr
     assert "Traceback" not in run.stderr
     ground = load_ground(floor, None, cfg.plant.rate_hz, cfg.plant.dof)
