@@ -26,10 +26,9 @@ from dcsms_ros.cli.common import (
     plot_dir,
     print_json,
 )
-from dcsms_ros.core.config import SystemConfig, scaled
-from dcsms_ros.core.model import axis_names, input_slices, plant_state_space
+from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.model import axis_names
 from dcsms_ros.core.modes import Mode, parse_mode
-from dcsms_ros.core.schema import resolve_alias
 from dcsms_ros.errors import ConfigError, DcsmsError
 
 # dcsms_ros.core.analytics imports python-control (~1.5 s): imported where it is used, so that
@@ -353,155 +352,9 @@ def _plot_bode(out: Path, mode: Mode, axis: str, f: Array, names: Sequence[str],
     plt.close(fig)
 
 
-# ---------------------------------------------------------------------------------------------
-# sweep
-
-
-def top_stage_response(cfg: SystemConfig, axis: str, f_hz: Array) -> tuple[CArray, CArray]:
-    """``v_pN/v_b`` and ``v_pN/F_i`` (force on table i along ``axis``, i = 1..N) of the passive
-    plant: shapes (len(f),) and (len(f), N)."""
-    ss = plant_state_space(cfg)
-    g_sl, _, w_sl = input_slices(cfg)
-    dof, n = cfg.plant.dof, cfg.plant.num_stages
-    j = axis_names(dof).index(axis)
-    out_row = (n - 1) * dof + j
-    from dcsms_ros.core.lti import ss_response
-
-    s = 2j * math.pi * np.asarray(f_hz, dtype=float)
-    cols = [g_sl.start + j] + [w_sl.start + i * dof + j for i in range(n)]
-    h = [ss_response(ss.a, ss.b[:, [col]], ss.c[[out_row], :], 0.0, s) for col in cols]
-    return h[0], np.stack(h[1:], axis=1)
-
-
-def _eigenvalues_hz(cfg: SystemConfig) -> CArray:
-    lam = np.linalg.eigvals(plant_state_space(cfg).a) / TWO_PI
-    return np.asarray(sorted(lam, key=lambda z: (z.imag, z.real)), dtype=complex)
-
-
-def _track(loci: Sequence[CArray]) -> CArray:
-    """Reorder each step's eigenvalues to continue the nearest track of the step before
-    (assignment problem), so lines and arrows follow one root; shape (steps, n_roots)."""
-    from scipy.optimize import linear_sum_assignment
-
-    tracks = [np.asarray(loci[0])]
-    for lam in loci[1:]:
-        cost = np.abs(tracks[-1][:, None] - np.asarray(lam)[None, :])
-        _, col = linear_sum_assignment(cost)
-        tracks.append(np.asarray(lam)[col])
-    return np.vstack(tracks)
-
-
-def _pick(n: int, k: int) -> list[int]:
-    if n <= k:
-        return list(range(n))
-    return sorted({int(round(x)) for x in np.linspace(0, n - 1, k)})
-
-
 def run_sweep(args: argparse.Namespace) -> int:
-    """Scale ``--param`` by every factor; print/plot loci, FRC and PSD of the top stage."""
-    base = load_cfg(args)
-    _check_axis(base, args.axis)
-    f = _grid(args)
-    if args.curves < 1:
-        raise ConfigError(f"--curves must be >= 1, got {args.curves}")
-    if args.ground_psd < 0 or args.force_psd < 0:
-        raise ConfigError("--ground-psd and --force-psd must be >= 0")
-    name = resolve_alias(args.param)
-    cfgs = [scaled(base, args.param, x) for x in args.factors]
-    loci = [_eigenvalues_hz(c) for c in cfgs]
-    modes = [oscillatory_modes(c) for c in cfgs]
-    top = f"v_p{base.plant.num_stages}"
-    picked = _pick(len(cfgs), args.curves)
-    frc: list[CArray] = []
-    psd: list[Array] = []
-    for i in picked:
-        h_g, h_f = top_stage_response(cfgs[i], args.axis, f)
-        frc.append(h_g)
-        psd.append(args.ground_psd * np.abs(h_g) ** 2
-                   + args.force_psd * np.sum(np.abs(h_f) ** 2, axis=1))
-    if args.json:
-        print_json({
-            "param": args.param, "name": name, "axis": args.axis, "factors": args.factors,
-            "eigenvalues_hz": loci,
-            "modes": [[_mode_dict(m) for m in ms] for ms in modes],
-            "frequency_hz": f,
-            "curves": [{"factor": args.factors[i], f"{top}/v_b_db": _db(h),
-                        f"psd_{top}": p} for i, h, p in zip(picked, frc, psd, strict=True)],
-        })
-    else:
-        _print_sweep(args.param, name, args.factors, modes)
-    if args.plot is not None:
-        d = plot_dir(args.plot)
-        fig3 = d / f"fig3_{args.param}.png"
-        fig6 = d / f"fig6_{args.param}.png"
-        _plot_loci(fig3, args.param, args.factors, loci)
-        _plot_frc_psd(fig6, args, top, f, [args.factors[i] for i in picked], frc, psd)
-        if not args.json:
-            print(f"wrote {fig3}\nwrote {fig6}")
-    return 0
+    """Handler of ``sweep`` (in :mod:`dcsms_ros.cli.model_sweep`, imported when used)."""
+    from dcsms_ros.cli.model_sweep import sweep
 
+    return sweep(args)
 
-def _print_sweep(param: str, name: str, factors: Sequence[float],
-                 modes: Sequence[Sequence[Any]]) -> None:
-    width = max(len(m) for m in modes) if modes else 0
-    print(f"sweep {param} ({name}) x factor: oscillatory modes f_n (Hz) / damping ratio")
-    head = "".join(f"  {'f' + str(i + 1):>9} {'zeta' + str(i + 1):>9}" for i in range(width))
-    print(f"{'factor':>8}{head}")
-    for x, ms in zip(factors, modes, strict=True):
-        cells = "".join(f"  {m.frequency_hz:>9.4f} {m.damping_ratio:>9.3e}" for m in ms)
-        print(f"{x:>8.4g}{cells}")
-
-
-def _plot_loci(out: Path, param: str, factors: Sequence[float], loci: Sequence[CArray]) -> None:
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import Normalize
-
-    tracks = _track(loci)
-    fig, ax = plt.subplots(figsize=(7, 5.5))
-    norm = Normalize(min(factors), max(factors) if max(factors) > min(factors) else
-                     min(factors) + 1)
-    xs = np.repeat(np.asarray(factors, float)[:, None], tracks.shape[1], axis=1)
-    sc = ax.scatter(tracks.real.ravel(), tracks.imag.ravel(), c=xs.ravel(), cmap="viridis",
-                    norm=norm, s=12, zorder=3)
-    for r in range(tracks.shape[1]):
-        ax.plot(tracks[:, r].real, tracks[:, r].imag, color="0.6", lw=0.7, zorder=2)
-        if len(factors) >= 2:
-            # arrow over the last segment that moves: the direction of increasing factor
-            seg = np.nonzero(np.abs(np.diff(tracks[:, r])) > 1e-9)[0]
-            if len(seg):
-                k = int(seg[len(seg) // 2])
-                ax.annotate("", xy=(tracks[k + 1, r].real, tracks[k + 1, r].imag),
-                            xytext=(tracks[k, r].real, tracks[k, r].imag),
-                            arrowprops={"arrowstyle": "->", "color": "C3", "lw": 1.2})
-    ax.axvline(0.0, color="k", lw=0.6)
-    ax.axhline(0.0, color="k", lw=0.6)
-    ax.set_xlabel("Re(lambda) / 2pi (Hz)")
-    ax.set_ylabel("Im(lambda) / 2pi (Hz)")
-    ax.set_title(f"Eigenvalue loci, {param} x factor {min(factors):g} ... {max(factors):g}")
-    fig.colorbar(sc, ax=ax, label=f"factor on {param}")
-    ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-
-
-def _plot_frc_psd(out: Path, args: argparse.Namespace, top: str, f: Array,
-                  factors: Sequence[float], frc: Sequence[CArray], psd: Sequence[Array]) -> None:
-    import matplotlib.pyplot as plt
-
-    fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(12, 4.8))
-    for i, (x, h, p) in enumerate(zip(factors, frc, psd, strict=True)):
-        ax_a.semilogx(f, _db(h), color=f"C{i % 10}", label=f"{args.param} x {x:g}")
-        ax_b.loglog(f, p, color=f"C{i % 10}", label=f"{args.param} x {x:g}")
-    ax_a.set_ylabel(f"|{top}/v_b| (dB)")
-    ax_a.set_title(f"(a) FRC {top}/v_b, axis {args.axis}")
-    ax_b.set_ylabel(f"PSD of {top} ((m/s)^2/Hz)")
-    ax_b.set_title(f"(b) PSD: ground {args.ground_psd:g} (m/s)^2/Hz + "
-                   f"table forces {args.force_psd:g} N^2/Hz")
-    for ax in (ax_a, ax_b):
-        ax.set_xlabel("frequency (Hz)")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)

@@ -16,7 +16,13 @@ from typing import Any
 
 import yaml
 
-from dcsms_ros.core.schema import ParamSpec, expand_specs, resolve_alias, stage_name
+from dcsms_ros.core.schema import (
+    check_value,
+    expand_specs,
+    resolve_alias,
+    stage_name,
+    suggest,
+)
 from dcsms_ros.errors import ConfigError
 
 Vec3 = tuple[float, float, float]
@@ -243,72 +249,16 @@ def config_from_flat(flat: Mapping[str, Any], source: str = "<params>") -> Syste
     for name, raw in flat.items():
         spec = specs.get(name)
         if spec is None:
-            raise ConfigError(f"{source}: unknown parameter '{name}'" + _suggest(name, specs))
+            raise ConfigError(f"{source}: unknown parameter '{name}'" + suggest(name, specs))
         if spec.fidelity and spec.fidelity != fidelity:
             raise ConfigError(f"{source}: '{name}' applies to fidelity {spec.fidelity}, but "
                               f"plant.fidelity is {fidelity}")
-        values[name] = _check(spec, raw, source)
+        values[name] = check_value(spec, raw, source)
     for name, spec in specs.items():
         if name not in values and (not spec.fidelity or spec.fidelity == fidelity):
             default = spec.default
             values[name] = list(default) if isinstance(default, list) else default
     return _build(values, source)
-
-
-def _suggest(name: str, specs: Mapping[str, ParamSpec]) -> str:
-    import difflib
-
-    close = difflib.get_close_matches(name, list(specs), n=1)
-    return f" (did you mean '{close[0]}'?)" if close else ""
-
-
-def _check(spec: ParamSpec, raw: Any, source: str) -> Any:
-    where = f"{source}: {spec.name}"
-    if spec.kind in ("floats", "ints"):
-        if not isinstance(raw, (list, tuple)):
-            raise ConfigError(f"{where}: expected a list of numbers, got {raw!r}")
-        items = [_scalar(spec, x, where) for x in raw]
-        if spec.length > 0 and len(items) != spec.length:
-            raise ConfigError(f"{where}: expected {spec.length} values, got {len(items)}")
-        if spec.length == -3 and len(items) % 3:
-            raise ConfigError(f"{where}: expected x y z triples, got {len(items)} values")
-        return items
-    return _scalar(spec, raw, where)
-
-
-def _scalar(spec: ParamSpec, raw: Any, where: str) -> Any:
-    kind = spec.kind.rstrip("s") if spec.kind in ("floats", "ints") else spec.kind
-    if kind == "str":
-        if not isinstance(raw, str):
-            raise ConfigError(f"{where}: expected a string, got {raw!r}")
-        if spec.choices and raw not in spec.choices:
-            raise ConfigError(f"{where}: must be one of {', '.join(spec.choices)}, got {raw!r}")
-        return raw
-    if kind == "bool":
-        if not isinstance(raw, bool):
-            raise ConfigError(f"{where}: expected true or false, got {raw!r}")
-        return raw
-    if isinstance(raw, str):
-        raw = _numeric_string(raw)  # PyYAML reads 1.2e6 as a string; rcl reads a double
-    if isinstance(raw, bool) or not isinstance(raw, (int, float)):
-        raise ConfigError(f"{where}: expected a number, got {raw!r}")
-    if kind == "int" and not float(raw).is_integer():
-        raise ConfigError(f"{where}: expected an integer, got {raw!r}")
-    x = float(raw)
-    if not math.isfinite(x):
-        raise ConfigError(f"{where}: must be finite, got {raw!r}")
-    if x < spec.lo or (spec.lo_open and x <= spec.lo) or x > spec.hi:
-        lo = "(" if spec.lo_open else "["
-        raise ConfigError(f"{where}: {raw!r} is out of range {lo}{spec.lo:g}, {spec.hi:g}] "
-                          f"{spec.unit}")
-    return int(x) if kind == "int" else x
-
-
-def _numeric_string(text: str) -> Any:
-    try:
-        return float(text)
-    except ValueError:
-        return text
 
 
 def _triples(values: list[float]) -> tuple[tuple[float, float, float], ...]:

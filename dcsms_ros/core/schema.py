@@ -8,9 +8,13 @@ Names are dotted, as ROS 2 flattens nested YAML; ``{s}`` stands for a stage name
 
 from __future__ import annotations
 
+import difflib
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
+
+from dcsms_ros.errors import ConfigError
 
 INF = math.inf
 AXES6 = ("x", "y", "z", "rx", "ry", "rz")
@@ -182,3 +186,61 @@ def resolve_alias(name: str) -> str:
     if len(name) >= 2 and name[0] in ALIASES and name[1:].isdigit():
         return f"{stage_name(int(name[1:]))}.{ALIASES[name[0]]}"
     return name
+
+
+# ---------------------------------------------------------------------------------------------
+# Validation of one value against its spec (errors name the field and the file)
+
+
+def suggest(name: str, specs: Mapping[str, ParamSpec]) -> str:
+    close = difflib.get_close_matches(name, list(specs), n=1)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def check_value(spec: ParamSpec, raw: Any, source: str) -> Any:
+    where = f"{source}: {spec.name}"
+    if spec.kind in ("floats", "ints"):
+        if not isinstance(raw, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list of numbers, got {raw!r}")
+        items = [_scalar(spec, x, where) for x in raw]
+        if spec.length > 0 and len(items) != spec.length:
+            raise ConfigError(f"{where}: expected {spec.length} values, got {len(items)}")
+        if spec.length == -3 and len(items) % 3:
+            raise ConfigError(f"{where}: expected x y z triples, got {len(items)} values")
+        return items
+    return _scalar(spec, raw, where)
+
+
+def _scalar(spec: ParamSpec, raw: Any, where: str) -> Any:
+    kind = spec.kind.rstrip("s") if spec.kind in ("floats", "ints") else spec.kind
+    if kind == "str":
+        if not isinstance(raw, str):
+            raise ConfigError(f"{where}: expected a string, got {raw!r}")
+        if spec.choices and raw not in spec.choices:
+            raise ConfigError(f"{where}: must be one of {', '.join(spec.choices)}, got {raw!r}")
+        return raw
+    if kind == "bool":
+        if not isinstance(raw, bool):
+            raise ConfigError(f"{where}: expected true or false, got {raw!r}")
+        return raw
+    if isinstance(raw, str):
+        raw = _numeric_string(raw)  # PyYAML reads 1.2e6 as a string; rcl reads a double
+    if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+        raise ConfigError(f"{where}: expected a number, got {raw!r}")
+    if kind == "int" and not float(raw).is_integer():
+        raise ConfigError(f"{where}: expected an integer, got {raw!r}")
+    x = float(raw)
+    if not math.isfinite(x):
+        raise ConfigError(f"{where}: must be finite, got {raw!r}")
+    if x < spec.lo or (spec.lo_open and x <= spec.lo) or x > spec.hi:
+        lo = "(" if spec.lo_open else "["
+        raise ConfigError(f"{where}: {raw!r} is out of range {lo}{spec.lo:g}, {spec.hi:g}] "
+                          f"{spec.unit}")
+    return int(x) if kind == "int" else x
+
+
+def _numeric_string(text: str) -> Any:
+    try:
+        return float(text)
+    except ValueError:
+        return text

@@ -36,11 +36,14 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import ALL_MODES, Mode, controller_ids, enabled_controllers, parse_mode
 from dcsms_ros.errors import ConfigError, ModeError
 from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import status, twist_array
 from dcsms_ros.nodes.params import SELECTORS, NodeConfig, declare_local, declare_schedule
 from dcsms_ros.nodes.runtime import main_for
 from dcsms_ros.nodes.trip import TripMonitor
 
+#: Reader depth of the trip monitor's velocity streams, drained every 50 ms (samples).
+TRIP_DEPTH = 4000
 #: std_msgs/String, transient local: the flat parameters as params-file YAML.
 CONFIG_TOPIC = getattr(topics, "CONFIG", f"{topics.NAMESPACE}/config")
 
@@ -98,8 +101,16 @@ class ModeSwitchNode(Node):
                             callback_group=services)
         self._monitors = self._make_monitors(cfg)
         self._buffers: list[list[np.ndarray]] = [[] for _ in range(n)]
-        if self.trip_enabled:
-            # an observer, not on the control path: reliable so the band-pass sees every sample
+        self._hot = HotPath(self, self._buf_lock)
+        self._trip_subs: list = []
+        if self.trip_enabled and self._hot.on:
+            # an observer, not on the control path: reliable so the band-pass sees every
+            # sample; no executor wakes per sample, _check_trip drains the queues in blocks
+            trip_qos = qos.stream_pub(lockstep)
+            trip_qos.depth = TRIP_DEPTH
+            self._trip_subs = [self._hot.detached(TwistStamped, topics.velocity_topic(
+                f"stage{i + 1}"), trip_qos) for i in range(n)]
+        elif self.trip_enabled:  # DCSMS_HOT_PATH=0: one executor callback per sample
             for i in range(n):
                 self.create_subscription(TwistStamped, topics.velocity_topic(f"stage{i + 1}"),
                                          lambda m, i=i: self._on_velocity(i, m),
@@ -227,6 +238,8 @@ class ModeSwitchNode(Node):
         self._buffers[i].append(twist_array(msg, self._monitors[i].channels))
 
     def _check_trip(self) -> None:
+        for i, sub in enumerate(self._trip_subs):
+            HotPath.drain(sub, lambda m, i=i: self._on_velocity(i, m))
         with self._buf_lock:
             worst = None
             for i, (mon, buf) in enumerate(zip(self._monitors, self._buffers, strict=True)):
