@@ -7,8 +7,8 @@
 A benchmark is a function ``run(smoke, tmp) -> list[row]`` registered in :data:`REGISTRY`;
 a row is a dict with ``name``, ``value``, ``unit``, ``baseline_name``, ``baseline`` and
 optionally ``target`` (value >= target), ``target_ratio`` (value / baseline >= it),
-``target_max`` (value <= it) and ``note``. The graph figures (lockstep, real time) plug in the
-same way from ``bench/graph_bench.py`` once the node graph exists.
+``target_max`` (value <= it) and ``note``. The graph figures (lockstep, real time, executor
+comparison) come from ``bench/graph_bench.py``.
 """
 
 from __future__ import annotations
@@ -32,6 +32,8 @@ sys.path.insert(0, str(HERE))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 Row = dict[str, Any]
+#: ``--rt-seconds``: length of the real-time graph run (default 60 s, smoke 3 s).
+RT_SECONDS: float | None = None
 
 
 def _engine(smoke: bool, tmp: Path) -> list[Row]:
@@ -64,8 +66,10 @@ def _graph(smoke: bool, tmp: Path) -> list[Row]:
     if not (HERE / "graph_bench.py").exists():
         return [{"name": "lockstep / real-time graph", "value": None, "unit": "",
                  "note": "bench/graph_bench.py not written yet (needs the node graph)"}]
-    import graph_bench  # type: ignore[import-not-found]
+    import graph_bench
 
+    if RT_SECONDS is not None:
+        graph_bench.RT_SECONDS = RT_SECONDS
     return list(graph_bench.run(smoke, tmp))
 
 
@@ -142,7 +146,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--smoke", action="store_true", help="tiny sizes, a few seconds")
     ap.add_argument("--only", nargs="*", choices=sorted(REGISTRY), help="run only these")
     ap.add_argument("--out", type=Path, default=HERE / "results.json")
+    ap.add_argument("--rt-seconds", type=float, default=None, metavar="S",
+                    help="real-time graph run length (default 60 s; smoke 3 s)")
     a = ap.parse_args(argv)
+    global RT_SECONDS
+    RT_SECONDS = a.rt_seconds
     rows: list[Row] = []
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="dcsms-bench-") as tmp:

@@ -147,8 +147,9 @@ def read_bag(path: str | Path, progress: Progress | None = None,
     except BagError:
         raise
     except Exception as exc:  # noqa: BLE001 - rosbags/mcap/sqlite raise many types
+        detail = " ".join(str(exc).split())  # one line: YAML errors span several
         raise BagError(f"{p}: cannot read bag (truncated or corrupted?): "
-                       f"{type(exc).__name__}: {exc}") from None
+                       f"{type(exc).__name__}: {detail}") from None
 
 
 def _read(reader: Any, path: Path, progress: Progress | None, chunk: int) -> BagData:

@@ -164,6 +164,13 @@ class _Loop:
         self.nonfinite = 0
         self.last_saturated = 0
 
+    def prime(self, twist: ArrayLike) -> None:
+        """Start the filters in the steady state of a constant ``twist`` (dof,) (a controller
+        joining a running plant; see :meth:`~dcsms_ros.core.filters.SosFilter.prime`)."""
+        x = np.asarray(twist, dtype=np.float64)
+        if np.isfinite(x).all():
+            self._filter.prime(x[self._axes])
+
     def step(self, twist: ArrayLike) -> Array:
         """One sample: measured twist (dof,) m/s, rad/s -> wrench (dof,) N, N*m on the stage.
 

@@ -227,6 +227,25 @@ class SosFilter:
         """Copy delay states in (shape as returned by :meth:`get_state`)."""
         np.copyto(self._z, np.asarray(state, dtype=np.float64))
 
+    def prime(self, x: ArrayLike) -> None:
+        """Set the delay states to the steady state of a constant input ``x`` (channels,), so
+        a filter started on a running signal gives no start-up transient (a bumpless start).
+        Channels whose filter has no steady state (a pole at z = 1) are left at zero."""
+        from scipy.signal import sosfilt_zi
+
+        u = np.asarray(x, dtype=np.float64)
+        one = np.ones(self.sections)
+        for c in range(self.channels):
+            sos = np.column_stack([self._b0[:, c], self._b1[:, c], self._b2[:, c], one,
+                                   self._a1[:, c], self._a2[:, c]])
+            with np.errstate(all="ignore"):
+                try:
+                    zi = sosfilt_zi(sos) * u[c]
+                except (np.linalg.LinAlgError, ValueError):
+                    continue
+            if np.isfinite(zi).all():
+                self._z[:, :, c] = zi
+
     def step(self, x: ArrayLike) -> Array:
         """Filter one sample per channel.
 

@@ -10,7 +10,7 @@ engine starts the controllers of its initial mode, and fades it in from zero in 
 restarted controller rejoins a running plant without a kick).
 
 Real time only: a watchdog publishes zero force while no input arrived for
-``control.input_timeout_s`` (node clock, i.e. simulated time under ``use_sim_time``). In lockstep
+``control.input_timeout_s`` (steady wall clock, checked every quarter timeout). In lockstep
 the plant's own timeout covers a silent input, and a pause of the plant is not a fault.
 """
 
@@ -23,7 +23,6 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rclpy.clock import Clock, ClockType
-from rclpy.duration import Duration
 from rclpy.node import Node
 from std_srvs.srv import SetBool
 
@@ -33,6 +32,7 @@ from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.modes import controller_stage
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_array, wrench_msg
 from dcsms_ros.nodes.params import (
@@ -42,7 +42,7 @@ from dcsms_ros.nodes.params import (
     declare_schedule,
     publishers_matched,
 )
-from dcsms_ros.nodes.runtime import Stoppable
+from dcsms_ros.nodes.runtime import Stoppable, wait_acked
 
 #: Longest hold of the first lockstep answer while readers match, s.
 MATCH_TIMEOUT_S = 5.0
@@ -87,6 +87,8 @@ class ControllerNode(Node, Stoppable):
         if enabled and not self.lockstep:
             self.loop.enable(True)
         self.dof = cfg.plant.dof
+        self.rate = cfg.plant.rate_hz
+        self.guard = InputGuard(self, f"{cid} velocity", MAX_VELOCITY_MPS)
         self.frame = f"stage{controller_stage(cid)}"
         self.input_timeout_s = cfg.control.input_timeout_s
         self.pub = self.create_publisher(WrenchStamped, topics.force_topic(cid),
@@ -102,9 +104,13 @@ class ControllerNode(Node, Stoppable):
         self.stale = False
         self.samples = self.repeats = self.out_of_order = 0
         self.nonfinite_out = self.stale_events = 0
+        self.stale_at_mono_ns = 0
+        self.changed_at_ns = -1
         self._seen = (0, 0)
         if not self.lockstep:
-            self.create_timer(max(self.input_timeout_s / 2.0, 1e-3), self._watchdog)
+            # steady clock: sim time only advances with /clock (100 Hz), too coarse for 10 ms
+            self.create_timer(max(self.input_timeout_s / 4.0, 1e-3), self._watchdog,
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f"{cid}: input {topics.velocity_topic(body)}, output "
                                f"{topics.force_topic(cid)}, "
@@ -124,6 +130,9 @@ class ControllerNode(Node, Stoppable):
         return self._matched
 
     def _on_velocity(self, msg: TwistStamped) -> None:
+        x = twist_array(msg, self.dof)
+        if not self.guard.ok(x):
+            return  # dropped whole (counted, logged): its stamp must not block later samples
         ns = stamp_ns(msg.header.stamp)
         if ns == self.last_ns and self._cache is not None:
             self.repeats += 1
@@ -134,12 +143,19 @@ class ControllerNode(Node, Stoppable):
             return
         if not self._matched and not self._match_first_sample([self.pub]):
             return
+        if not self.lockstep and self.last_ns >= 0:
+            # real time drops samples under load (keep-last 1): the fade follows the stamps,
+            # so a switch or a trip fades in control.fade_time_s of plant time, not messages
+            for _ in range(min(round((ns - self.last_ns) * self.rate / 1e9) - 1, 100_000)):
+                self.loop.fader.step()
         self.last_ns = ns
-        self._t_in = self.get_clock().now()
+        self._t_in = time.monotonic()
         if self.stale:
             self.stale = False
             self.get_logger().info(f"{self.cid}: input is back")
-        w = self.loop.step(twist_array(msg, self.dof))
+        if self.samples == 0 and not self.lockstep:
+            self.loop.prime(x)  # joining a running plant: no filter start-up transient
+        w = self.loop.step(x)
         if not np.isfinite(w).all():  # defensive: a NaN must never reach an actuator
             self.nonfinite_out += 1
             w = self._zero
@@ -163,12 +179,13 @@ class ControllerNode(Node, Stoppable):
     def _watchdog_locked(self) -> None:
         if self._t_in is None:
             return
-        now = self.get_clock().now()
-        if (now - self._t_in).nanoseconds * 1e-9 <= self.input_timeout_s:
+        if time.monotonic() - self._t_in <= self.input_timeout_s:
             return
+        now = self.get_clock().now()
         if not self.stale:
             self.stale = True
             self.stale_events += 1
+            self.stale_at_mono_ns = time.monotonic_ns()  # compared with a kill time by tests
             self.get_logger().warning(f"{self.cid}: no input for {self.input_timeout_s:g} s: "
                                       f"zero force", throttle_duration_sec=2.0)
         self.pub.publish(wrench_msg(self._zero, now.nanoseconds, self.frame))
@@ -192,6 +209,7 @@ class ControllerNode(Node, Stoppable):
     def _on_change(self, cfg: SystemConfig, changed: set[str]) -> None:
         """Rebuild the loop from the new tuning, keeping what state can be kept."""
         self.input_timeout_s = cfg.control.input_timeout_s
+        self.changed_at_ns = self.last_ns  # the newest sample before the change (diagnostics)
         old = self.loop
         new = make_controller(cfg, self.cid, enabled=old.enabled)
         if "control.fade_time_s" not in changed:
@@ -217,9 +235,14 @@ class ControllerNode(Node, Stoppable):
             "samples": self.samples, "repeats": self.repeats,
             "out_of_order": self.out_of_order, "saturations": self.loop.saturations,
             "nonfinite_inputs": self.loop.nonfinite, "nonfinite_outputs": self.nonfinite_out,
+            "rejected_inputs": self.guard.rejected,
+            "stale_at_mono_ns": self.stale_at_mono_ns,
+            "params_changed_at_ns": self.changed_at_ns,
             "stale_events": self.stale_events})]
         self.pub_diag.publish(arr)
 
     def close(self) -> None:
-        """Give reliable observers a moment to receive the last commands (clean exit)."""
-        self.pub.wait_for_all_acked(Duration(seconds=0.5))
+        """Give reliable observers a moment to receive the last commands and the final
+        counters (clean exit)."""
+        self._report()
+        wait_acked([self.pub, self.pub_diag])

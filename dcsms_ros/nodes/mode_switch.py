@@ -37,7 +37,7 @@ from dcsms_ros.core.modes import ALL_MODES, Mode, controller_ids, enabled_contro
 from dcsms_ros.errors import ConfigError, ModeError
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import status, twist_array
+from dcsms_ros.nodes.msgs import stamp_ns, status, twist_array
 from dcsms_ros.nodes.params import SELECTORS, NodeConfig, declare_local, declare_schedule
 from dcsms_ros.nodes.runtime import main_for
 from dcsms_ros.nodes.trip import TripMonitor
@@ -81,6 +81,8 @@ class ModeSwitchNode(Node):
         self.num_stages = n
         self.tripped = False
         self.trip_reason = ""
+        self.trip_at = (0, 0, 0)
+        self._newest_ns = 0
         self.last_result = "start"
         self._switch_lock = threading.Lock()
         self._buf_lock = threading.Lock()
@@ -236,6 +238,7 @@ class ModeSwitchNode(Node):
     # -- trip --------------------------------------------------------------------------------
     def _on_velocity(self, i: int, msg: TwistStamped) -> None:
         self._buffers[i].append(twist_array(msg, self._monitors[i].channels))
+        self._newest_ns = stamp_ns(msg.header.stamp)
 
     def _check_trip(self) -> None:
         for i, sub in enumerate(self._trip_subs):
@@ -258,6 +261,8 @@ class ModeSwitchNode(Node):
     def _trip(self, reason: str) -> None:
         self.tripped = True
         self.trip_reason = reason
+        # when: wall (CLOCK_MONOTONIC), the newest velocity sample judged, and /clock (sim time)
+        self.trip_at = (time.monotonic_ns(), self._newest_ns, self.get_clock().now().nanoseconds)
         self.get_logger().error(f"instability trip: {reason}; latching Passive until "
                                 f"{topics.RESET_TRIP}")
         with self._switch_lock:
@@ -294,7 +299,9 @@ class ModeSwitchNode(Node):
         msg = (f"TRIPPED: {self.trip_reason}" if self.tripped else
                f"degraded: {', '.join(missing)} absent" if missing else self.mode.label)
         values = {"mode": self.mode.label, "tripped": self.tripped,
-                  "trip_reason": self.trip_reason, "last_switch": self.last_result}
+                  "trip_reason": self.trip_reason, "last_switch": self.last_result,
+                  "trip_mono_ns": self.trip_at[0], "trip_sample_ns": self.trip_at[1],
+                  "trip_clock_ns": self.trip_at[2]}
         values.update({f"rms_stage{i + 1}_mps": " ".join(f"{x:.3g}" for x in m.rms)
                        for i, m in enumerate(self._monitors)})
         values.update({c: "present" if r else "absent" for c, r in self._ready.items()})

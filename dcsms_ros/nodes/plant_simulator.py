@@ -31,7 +31,6 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rclpy.clock import Clock, ClockType
-from rclpy.duration import Duration
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
@@ -42,6 +41,7 @@ from dcsms_ros.core.modes import controller_ids
 from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.guard import FORCE_LIMIT_FACTOR, InputGuard
 from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import (
     joint_state,
@@ -61,7 +61,7 @@ from dcsms_ros.nodes.params import (
     declare_schedule,
     publishers_matched,
 )
-from dcsms_ros.nodes.runtime import Stoppable, main_for
+from dcsms_ros.nodes.runtime import Stoppable, main_for, wait_acked
 
 #: Real time: at most this many samples are computed in one timer callback to catch up.
 MAX_BURST = 20
@@ -117,6 +117,8 @@ class PlantSimulatorNode(Node, Stoppable):
                                     "this bag (BAG or BAG:TOPIC, resampled to plant.rate_hz) "
                                     "instead of white noise; empty: white noise")
         self.sim = PlantSimulator(cfg, ground=_replayed_ground(ground_from, cfg))
+        self.force_guard = InputGuard(self, "force command", FORCE_LIMIT_FACTOR * max(
+            a.limit for a in self.sim.allocators))
         self.dof = cfg.plant.dof
         self.rate = cfg.plant.rate_hz
         self.bodies = topics.body_names(n)
@@ -140,6 +142,7 @@ class PlantSimulatorNode(Node, Stoppable):
         for cid in self.controllers:
             self.hot.subscribe(WrenchStamped, topics.force_topic(cid),
                                lambda m, c=cid: self._on_force(c, m), sub_qos)
+        self._applied: tuple[np.ndarray, int] | None = None
         self._t_pub: list[int] = []  # timing_file: monotonic ns of each sample's publication
         self._lat: dict[str, list[int]] = {c: [] for c in self.controllers}
         self._cpu = [0.0, 0.0]
@@ -263,24 +266,39 @@ class PlantSimulatorNode(Node, Stoppable):
             self.retransmits += 1
 
     def _publish_sample(self) -> None:
-        """Publish sample k: clock, true velocities, raw channels (engine order)."""
+        """Publish sample k: raw channels first (the control path waits for them), then the
+        previous sample's applied forces, clock and true velocities. The core calls keep the
+        engine's order; observer topics nobody subscribes to are not serialized at all."""
         ns = sample_ns(self.sim.k, self.rate)
         self._ns = ns
         if self.timing_file:
             self._t_pub.append(time.monotonic_ns())
         truth = self.sim.truth().copy()
         raw = self.sim.measure()
-        stamp = to_stamp(ns)
-        if self.sim.k % self.clock_every == 0:
-            self.pub_clock.publish(ClockMsg(clock=stamp))
-        for b, (pub, v) in enumerate(zip(self.pub_truth, truth, strict=False)):
-            pub.publish(twist_msg(v, ns, self.bodies[b]))
         self._raw_msg = joint_state(self.channel_names, ns, velocity=raw)
         self.pub_raw.publish(self._raw_msg)
+        self._flush_applied()
+        if self.sim.k % self.clock_every == 0:
+            self.pub_clock.publish(ClockMsg(clock=to_stamp(ns)))
+        for b, (pub, v) in enumerate(zip(self.pub_truth, truth, strict=False)):
+            if pub.get_subscription_count():
+                pub.publish(twist_msg(v, ns, self.bodies[b]))
+
+    def _flush_applied(self) -> None:
+        """Publish the applied forces held back by :meth:`_advance` (lockstep)."""
+        if self._applied is not None:
+            applied, ns = self._applied
+            self._applied = None
+            if self.pub_applied.get_subscription_count():
+                self.pub_applied.publish(joint_state(self.sim.actuator_names, ns,
+                                                     effort=applied))
 
     def _advance(self, wrenches: dict[str, np.ndarray]) -> None:
         applied = self.sim.advance(wrenches)
-        self.pub_applied.publish(joint_state(self.sim.actuator_names, self._ns, effort=applied))
+        # lockstep: published after the next raw sample, off the loop's critical path
+        self._applied = (applied, self._ns)
+        if not self.lockstep:
+            self._flush_applied()
         if self.sim.nonfinite_inputs != self._nonfinite_seen:
             self._nonfinite_seen = self.sim.nonfinite_inputs
             self.get_logger().warning(f"non-finite force commands ignored (total "
@@ -306,7 +324,7 @@ class PlantSimulatorNode(Node, Stoppable):
         self._advance({c: self._got.get(c, self._zero) for c in self.controllers})
 
     def _on_force(self, cid: str, msg: WrenchStamped) -> None:
-        w = wrench_array(msg, self.dof)
+        w = self.force_guard.clean(wrench_array(msg, self.dof), 0.0)
         if self.timing_file:  # sensor-to-force latency: sample publication -> force arrival
             k = round(stamp_ns(msg.header.stamp) * self.rate / 1e9)
             if 0 <= k < len(self._t_pub):
@@ -367,6 +385,7 @@ class PlantSimulatorNode(Node, Stoppable):
                 return
 
     def _done(self) -> None:
+        self._flush_applied()
         wall = time.monotonic() - self._t0
         self._cpu[1] = time.process_time()
         self.get_logger().info(f"finished {self.sim.k} samples ({self.sim.t:.3f} s simulated) "
@@ -399,6 +418,7 @@ class PlantSimulatorNode(Node, Stoppable):
                   "lockstep_timeouts": sum(self.faults.values()),
                   "retransmits": self.retransmits, "stale_events": sum(self.stale_events.values()),
                   "overruns": self.overruns, "nonfinite_inputs": self.sim.nonfinite_inputs,
+                  "rejected_inputs": self.force_guard.rejected,
                   "saturations": self.sim.saturations, "finished": self.finished}
         arr = DiagnosticArray()
         arr.header.stamp = to_stamp(self._ns)
@@ -415,13 +435,15 @@ class PlantSimulatorNode(Node, Stoppable):
 
     def close(self) -> None:
         """Give reliable observers a moment to receive what was published (clean exit)."""
+        with self._lock:
+            self._flush_applied()
+            self._report()  # final counters: a recording can be checked against them
         if self.timing_file:
             np.savez(self.timing_file, t_pub_ns=np.asarray(self._t_pub, dtype=np.int64),
                      cpu_s=np.asarray(self._cpu), rate_hz=self.rate, overruns=self.overruns,
                      **{f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
                         for c, v in self._lat.items()})
-        for pub in [self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag]:
-            pub.wait_for_all_acked(Duration(seconds=0.5))
+        wait_acked([self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag])
 
 
 def _replayed_ground(spec: str, cfg: SystemConfig) -> np.ndarray | None:

@@ -4,7 +4,9 @@ Executor: :class:`rclpy.executors.SingleThreadedExecutor`. Measured on this mach
 two-process ping-pong of ``JointState`` runs ~2,700 round trips/s with it, while
 ``rclpy.experimental.EventsExecutor`` (Jazzy) delivered nothing in 20 s at 100 % CPU, so the
 experimental one is not used. Nodes that wait on service replies inside a callback
-(``mode_switch``) use a :class:`~rclpy.executors.MultiThreadedExecutor` instead.
+(``mode_switch``) use a :class:`~rclpy.executors.MultiThreadedExecutor` instead. The per-sample
+subscriptions do not go through the executor at all: a node's :class:`~.hotpath.HotPath`
+thread (started here if the node did not start it) serves them from a minimal wait set.
 
 Shutdown: rclpy's signal handlers are not installed. SIGINT and SIGTERM set a flag; the spin
 loop ends, the node is destroyed and the context shut down: exit status 0, no traceback. A
@@ -16,6 +18,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -51,6 +54,20 @@ class Stoppable:
     def finish(self) -> None:
         """Ask the spin loop to return after the current callback."""
         self.finished = True
+
+
+#: Longest total wait (s) of a node's close() for its reliable readers' acknowledgements.
+ACK_WAIT_S = 3.0
+
+
+def wait_acked(pubs: Sequence[Any], total_s: float = ACK_WAIT_S) -> None:
+    """Wait until every reader acknowledged what ``pubs`` published, ``total_s`` in all (a
+    recorder on a loaded machine may lag; a process that exits earlier loses the rest)."""
+    from rclpy.duration import Duration
+
+    end = time.monotonic() + total_s
+    for pub in pubs:
+        pub.wait_for_all_acked(Duration(seconds=max(end - time.monotonic(), 0.0)))
 
 
 def spin_until_stopped(node: Node, executor: Executor, stop: Callable[[], bool]) -> None:

@@ -18,13 +18,13 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from rclpy.clock import Clock, ClockType
-from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_msg
 from dcsms_ros.nodes.params import (
@@ -34,7 +34,7 @@ from dcsms_ros.nodes.params import (
     declare_schedule,
     publishers_matched,
 )
-from dcsms_ros.nodes.runtime import main_for
+from dcsms_ros.nodes.runtime import main_for, wait_acked
 
 #: Longest hold of the first lockstep answer while readers match, s.
 MATCH_TIMEOUT_S = 5.0
@@ -54,6 +54,7 @@ class SensorDecouplingNode(Node):
         self._match_t0: float | None = None
         self._matched = not lockstep
         self.dec = Decoupler(cfg)
+        self.guard = InputGuard(self, "raw sensor channels", MAX_VELOCITY_MPS)
         self.dof = cfg.plant.dof
         self.bodies = topics.body_names(cfg.plant.num_stages)
         self.names = list(self.dec.channel_names)
@@ -106,6 +107,8 @@ class SensorDecouplingNode(Node):
 
     def _on_raw(self, msg: JointState) -> None:
         ns = stamp_ns(msg.header.stamp)
+        # implausible channels are counted on arrival and read NaN (that body's twist is zero)
+        raw = self.guard.clean_each(self._channels(msg), np.nan)
         if ns == self.last_ns:
             self.repeats += 1
             for pub, m in zip(self.pubs, self._cache, strict=True):
@@ -116,7 +119,7 @@ class SensorDecouplingNode(Node):
             return
         if not self._matched and not self._match_first_sample(self.pubs):
             return
-        tw = self.dec.step(self._channels(msg))
+        tw = self.dec.step(raw)
         self.last_ns = ns
         self.samples += 1
         self._cache = [twist_msg(tw[i], ns, b) for i, b in enumerate(self.bodies)]
@@ -133,13 +136,15 @@ class SensorDecouplingNode(Node):
         arr.header.stamp = to_stamp(max(self.last_ns, 0))
         arr.status = [status("sensor_decoupling", level, "running", {
             "samples": self.samples, "repeats": self.repeats, "out_of_order": self.out_of_order,
-            "nonfinite": self.dec.nonfinite, "bad_messages": self.bad_messages})]
+            "nonfinite": self.dec.nonfinite, "bad_messages": self.bad_messages,
+            "rejected_inputs": self.guard.rejected})]
         self.pub_diag.publish(arr)
 
     def close(self) -> None:
-        """Give reliable observers a moment to receive the last twists (clean exit)."""
-        for pub in self.pubs:
-            pub.wait_for_all_acked(Duration(seconds=0.5))
+        """Give reliable observers a moment to receive the last twists and the final
+        counters (clean exit)."""
+        self._report()
+        wait_acked([*self.pubs, self.pub_diag])
 
 
 main = main_for(SensorDecouplingNode)

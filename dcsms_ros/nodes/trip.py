@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import butter, sosfilt
+from scipy.signal import butter, sosfilt, sosfilt_zi
 
 from dcsms_ros.core.config import ControlConfig
 
@@ -61,7 +61,13 @@ class TripMonitor:
         x = np.asarray(block, dtype=np.float64).reshape(-1, self.channels)
         if x.shape[0] == 0:
             return self.rms
-        x = np.where(np.isfinite(x), x, 0.0)  # a NaN is the decoupler's fault, not instability
+        # a NaN or an absurd value (> 10 m/s) is a corrupt message, not instability
+        with np.errstate(invalid="ignore"):
+            x = np.where(np.abs(x) <= 10.0, x, 0.0)
+        if self.count == 0:
+            # start the band-pass in the steady state of the first sample: a velocity offset
+            # (sensor drift) must not ring through it as a false trip at start or after a reset
+            self._zi = sosfilt_zi(self.sos)[:, :, None] * x[0][None, None, :]
         y, self._zi = sosfilt(self.sos, x, axis=0, zi=self._zi)
         y = y[-self.window:]
         n = y.shape[0]

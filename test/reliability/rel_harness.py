@@ -34,6 +34,8 @@ from dcsms_ros.nodes import qos
 REPO = Path(__file__).resolve().parents[2]
 TABLE1 = REPO / "config" / "table1.yaml"
 DCSMS = [sys.executable, "-m", "dcsms_ros.cli"]
+#: frame_id of the messages a test injects (the probe does not record them as outputs).
+INJECTED = "injected"
 
 
 def results_file() -> Path:
@@ -84,6 +86,12 @@ class Graph:
             kid.proc = subprocess.Popen([*kid.argv, *extra_args], stdout=out,
                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                         env=self.env, start_new_session=True)
+
+    def plant_param(self, name: str, default: Any) -> Any:
+        """The plant's value of node parameter ``name`` (as set here, else its default)."""
+        doc = yaml.safe_load(self.params.read_text())
+        own = doc.get(f"{topics.NAMESPACE}/plant_simulator", {}).get("ros__parameters", {})
+        return own.get(name, doc["/**"]["ros__parameters"].get(name, default))
 
     def pid(self, name: str) -> int:
         proc = self.kids[name].proc
@@ -161,6 +169,8 @@ class Probe:
             self.applied.append((mono_ns(), ns, tuple(m.effort)))
 
     def _on_force(self, c: str, m: WrenchStamped) -> None:
+        if m.header.frame_id == INJECTED:
+            return  # the test's own fault injection, not the controller's output
         ns = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
         f, t = m.wrench.force, m.wrench.torque
         with self.lock:
@@ -181,6 +191,27 @@ class Probe:
     def value(self, node: str, key: str, default: str = "") -> str:
         with self.lock:
             return self.diag.get(node, {}).get(key, default)
+
+    def status_after(self, node: str, after_ns: int) -> tuple[str, dict[str, str]] | None:
+        """The newest (message, values) of status ``node`` received after ``after_ns``."""
+        with self.lock:
+            for t, name, msg, values in reversed(self.diag_log):
+                if t <= after_ns:
+                    return None
+                if name == node:
+                    return msg, values
+        return None
+
+    def seen_after(self, node: str, after_ns: int, message: str) -> bool:
+        """True if status ``node`` reported ``message`` at some point after ``after_ns``."""
+        with self.lock:
+            return any(t > after_ns and name == node and msg == message
+                       for t, name, msg, _ in self.diag_log)
+
+    def applied_reaches(self, k: int, rate_hz: float) -> bool:
+        """True once an applied-force sample with index >= ``k`` arrived."""
+        with self.lock:
+            return bool(self.applied) and self.applied[-1][1] >= k * 1e9 / rate_hz
 
     def wait(self, cond: Callable[[], bool], timeout: float, what: str) -> None:
         """Wait for ``cond()`` (polled every 20 ms); fail with ``what`` after ``timeout`` s."""

@@ -1,0 +1,223 @@
+"""Node graph: lockstep steps/s and the real-time graph at 2 kHz, next to the ping-pong bound.
+
+Every figure is measured in this run: the rclpy ping-pong bound (``pingpong.py``, default
+executor on both sides), the same ping-pong with the echo on rclpy's ``EventsExecutor`` and with
+both sides on the hot path (``dcsms_ros/nodes/hotpath.py``), then the six-process graph
+(plant, decoupling, fb_stage1, fb_stage2, ff_stage1, mode_switch; table1, DFBC+FFC) in lockstep
+with the hot path on and off (``DCSMS_HOT_PATH=0``: every subscription on the default
+executor), then in real time at ``plant.rate_hz`` for ``--rt-seconds``.
+
+The plant writes the wall time of every sample and, per controller, the time from a sample's
+publication to the arrival of the force stamped with it (``timing_file``): lockstep rate,
+real-time period percentiles, deadline misses (period > 1.5 T) and sensor-to-force latency
+come from there; CPU share per node from ``/proc/<pid>/stat`` over the stepping phase.
+``python bench/graph_bench.py [--smoke] [--rt-seconds S] [--lockstep-seconds S]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+CONFIG = HERE.parent / "config" / "table1.yaml"
+Row = dict[str, Any]
+#: Command-line override of the real-time duration (``bench/run.py`` passes none: 60 s).
+RT_SECONDS: float | None = None
+
+
+def _cpu_ticks(pid: int) -> int | None:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return int(fields[11]) + int(fields[12])  # utime + stime (fields 14, 15)
+
+
+@contextlib.contextmanager
+def _env(**kv: str):
+    old = {k: os.environ.get(k) for k in kv}
+    os.environ.update(kv)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool = True,
+              timeout_s: float = 600.0, on_running: Any = None) -> dict[str, Any]:
+    """Start the six node processes, step ``seconds`` of simulated time, return the timings.
+
+    ``on_running(kids)`` (e.g. a profiler attaching to ``kid.proc.pid``) is called once the
+    plant steps."""
+    import yaml
+
+    from dcsms_ros.cli import up
+    from dcsms_ros.core.config import load_config
+    from dcsms_ros.core.modes import Mode
+
+    cfg = load_config(CONFIG)
+    run_dir = Path(tempfile.mkdtemp(prefix=f"graph-{schedule}-", dir=tmp))
+    timing = run_dir / "timing.npz"
+    doc = up.params_document(cfg, schedule, Mode.DFBC_FFC, seconds, [])
+    doc[f"{up.topics.NAMESPACE}/plant_simulator"]["ros__parameters"]["timing_file"] = str(timing)
+    params = run_dir / "params.yaml"
+    params.write_text(yaml.safe_dump(doc, sort_keys=False))
+    kids = up.graph_children(cfg.plant.num_stages, params)
+    plant = next(k for k in kids if k.name == "plant_simulator")
+    with _env(ROS_DOMAIN_ID=str(domain), DCSMS_HOT_PATH="1" if hot else "0"):
+        up.start(kids, run_dir, verbose=False)
+    try:
+        assert plant.proc is not None and plant.log is not None
+        deadline = time.monotonic() + timeout_s
+        cpu0: dict[str, int | None] = {}
+        t_cpu0 = 0.0
+        while plant.proc.poll() is None and time.monotonic() < deadline:
+            if not cpu0 and "graph connected" in plant.log.read_text(errors="replace"):
+                t_cpu0 = time.monotonic()
+                cpu0 = {k.name: _cpu_ticks(k.proc.pid) for k in kids if k.proc is not None}
+                if on_running is not None:
+                    on_running(kids)
+            time.sleep(0.02)
+        t_cpu1 = time.monotonic()
+        cpu1 = {k.name: _cpu_ticks(k.proc.pid) for k in kids if k.proc is not None}
+        if plant.proc.poll() is None:
+            raise TimeoutError(f"{schedule} graph did not finish within {timeout_s:g} s")
+    finally:
+        up.stop(kids)
+    if plant.proc.returncode != 0 or not timing.exists():
+        raise RuntimeError(f"plant exited {plant.proc.returncode}: "
+                           f"{plant.log.read_text()[-2000:] if plant.log else ''}")
+    z = np.load(timing)
+    hz = os.sysconf("SC_CLK_TCK")
+    span = max(t_cpu1 - t_cpu0, 1e-9)
+    cpu = {n: (cpu1[n] - cpu0[n]) / hz / span for n in cpu0
+           if cpu0.get(n) is not None and cpu1.get(n) is not None}
+    c0, c1 = z["cpu_s"]
+    t = z["t_pub_ns"].astype(np.float64) * 1e-9
+    cpu["plant_simulator"] = (c1 - c0) / max(t[-1] - t[0], 1e-9) if c1 > c0 else float("nan")
+    lat = np.concatenate([z[k] for k in z.files if k.startswith("lat_ns_")]) * 1e-9
+    return {"t": t, "rate_hz": float(z["rate_hz"]), "cpu": cpu, "latency_s": lat,
+            "overruns": int(z["overruns"])}
+
+
+def lockstep_rate(r: dict[str, Any]) -> float:
+    """Steps per second from sample 10 on (sample 0 waits for the readers to match)."""
+    t = r["t"][10:]
+    return (t.size - 1) / (t[-1] - t[0])
+
+
+def realtime_stats(r: dict[str, Any]) -> dict[str, float]:
+    """Achieved rate, period percentiles (s), deadline-miss ratio, latency percentiles (s)."""
+    t, period = r["t"][10:], 1.0 / r["rate_hz"]
+    p = np.diff(t)
+    lat = r["latency_s"]
+    return {"rate_hz": (t.size - 1) / (t[-1] - t[0]), "p50": float(np.percentile(p, 50)),
+            "p99": float(np.percentile(p, 99)), "p999": float(np.percentile(p, 99.9)),
+            "max": float(p.max()), "miss": float(np.mean(p > 1.5 * period)),
+            "lat50": float(np.percentile(lat, 50)), "lat99": float(np.percentile(lat, 99)),
+            "samples": float(t.size)}
+
+
+def _pp(seconds: float, domain: int, executor: str, ping: str = "single") -> dict[str, Any]:
+    import pingpong
+
+    try:
+        return pingpong.measure(seconds, domain, executor, timeout_s=20.0, ping=ping)
+    except (TimeoutError, RuntimeError) as exc:
+        return {"round_trips_per_s": 0.0, "error": str(exc), "round_trips": 0,
+                "rtt_us_p50": float("nan"), "rtt_us_p99": float("nan")}
+
+
+def run(smoke: bool, tmp: Path) -> list[Row]:
+    """Rows: ping-pong variants, lockstep hot/default, real time; all in this run."""
+    base = int(os.environ.get("DCSMS_BENCH_DOMAIN", 150 + os.getpid() % 50))
+    pp_s = 1.0 if smoke else 5.0
+    ls_s = 0.5 if smoke else 5.0
+    rt_s = RT_SECONDS if RT_SECONDS is not None else (3.0 if smoke else 60.0)
+    rows: list[Row] = []
+    bound = _pp(pp_s, base, "single")
+    b = bound["round_trips_per_s"]
+    rows.append({"name": "graph: rclpy ping-pong bound (default executors)", "value": b,
+                 "unit": "round trips/s",
+                 "note": f"RTT p50 {bound['rtt_us_p50']:.0f} us, p99 {bound['rtt_us_p99']:.0f}"})
+    for ex, ping, label in (("events", "single", "echo on EventsExecutor"),
+                            ("hot", "hot", "both sides on the hot path")):
+        r = _pp(pp_s, base + 1, ex, ping)
+        rows.append({"name": f"graph: ping-pong, {label}", "value": r["round_trips_per_s"],
+                     "unit": "round trips/s", "baseline_name": "default executors",
+                     "baseline": b, "note": r.get("error") or
+                     f"RTT p50 {r['rtt_us_p50']:.0f} us, {r['round_trips']} round trips"})
+    rate = {}
+    for hot in (True, False):
+        r = run_graph("lockstep", ls_s, base + 2 + hot, tmp, hot=hot)
+        rate[hot] = lockstep_rate(r)
+        cpu = ", ".join(f"{n} {100 * c:.0f}%" for n, c in sorted(r["cpu"].items()))
+        lat = r["latency_s"]
+        rows.append({
+            "name": f"graph: lockstep DFBC+FFC, 6 processes, "
+                    f"{'hot path' if hot else 'default executor only'}",
+            "value": rate[hot], "unit": "steps/s", "baseline_name": "ping-pong bound",
+            "baseline": b, "target": 2000.0 if hot else None,
+            "target_ratio": 0.6 if hot else None,
+            "note": f"real-time factor {rate[hot] / 2000.0:.2f}x at 2 kHz; step p50 "
+                    f"{np.percentile(np.diff(r['t']), 50) * 1e6:.0f} us; sample->force p50 "
+                    f"{np.percentile(lat, 50) * 1e6:.0f} us; CPU {cpu}"})
+    rows.append({"name": "graph: lockstep real-time factor at 2 kHz (hot path)",
+                 "value": rate[True] / 2000.0, "unit": "x real time",
+                 "baseline_name": "default executor only", "baseline": rate[False] / 2000.0,
+                 "target": 1.0})
+    r = run_graph("realtime", rt_s, base + 4, tmp, timeout_s=rt_s * 3 + 120)
+    s = realtime_stats(r)
+    cpu = ", ".join(f"{n} {100 * c:.0f}%" for n, c in sorted(r["cpu"].items()))
+    per = f"period p50/p99/p99.9/max {s['p50'] * 1e6:.0f}/{s['p99'] * 1e6:.0f}/" \
+          f"{s['p999'] * 1e6:.0f}/{s['max'] * 1e6:.0f} us"
+    rows += [
+        {"name": f"graph: real time {rt_s:g} s, achieved rate", "value": s["rate_hz"],
+         "unit": "Hz", "baseline_name": "nominal", "baseline": r["rate_hz"],
+         "target_ratio": 0.999, "note": f"{per}; CPU {cpu}; catch-up overruns {r['overruns']}"},
+        {"name": "graph: real time, deadline-miss ratio (period > 1.5 T)", "value": s["miss"],
+         "unit": "", "target_max": 1e-3, "note": per},
+        {"name": "graph: real time, sensor-to-force latency p99", "value": s["lat99"] * 1e3,
+         "unit": "ms", "baseline_name": "p50", "baseline": s["lat50"] * 1e3, "target_max": 1.0,
+         "note": f"{r['latency_s'].size} forces, from the plant's publication of a sample to "
+                 f"its arrival at the plant"},
+    ]
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    global RT_SECONDS
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--smoke", action="store_true")
+    ap.add_argument("--rt-seconds", type=float, default=None)
+    a = ap.parse_args(argv)
+    RT_SECONDS = a.rt_seconds
+    with tempfile.TemporaryDirectory(prefix="dcsms-graph-") as tmp:
+        rows = run(a.smoke, Path(tmp))
+    import run as harness
+
+    print(harness.table(rows))
+    print(json.dumps(rows, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

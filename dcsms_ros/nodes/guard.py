@@ -1,0 +1,63 @@
+"""Plausibility guard of a node's numeric inputs (no message is trusted blindly).
+
+A value that is not finite, or whose magnitude no physical signal of this system can reach
+(:data:`MAX_VELOCITY_MPS` for geophone channels and twists, :data:`FORCE_LIMIT_FACTOR` times the
+actuator limit for force commands), is never used: the caller substitutes NaN (the core then
+zeroes that body and counts it) or zero force. Every rejected message is counted (reported in
+the node's diagnostics as ``rejected_inputs``) and logged at most every :data:`LOG_PERIOD_S`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from rclpy.node import Node
+
+#: No table, ground or geophone of this system moves at 10 m/s: larger is a corrupt value.
+MAX_VELOCITY_MPS = 10.0
+#: Controllers clip to the actuator limit; a command 100x beyond it is corrupt, not saturated.
+FORCE_LIMIT_FACTOR = 100.0
+#: Shortest interval between two log lines of one guard, s.
+LOG_PERIOD_S = 2.0
+
+
+class InputGuard:
+    """Counts and logs rejected inputs of one kind (``what``) for ``node``."""
+
+    def __init__(self, node: Node, what: str, limit: float) -> None:
+        self.node, self.what, self.limit = node, what, float(limit)
+        self.rejected = 0
+
+    def bad(self, x: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Element-wise: not finite or beyond the limit."""
+        with np.errstate(invalid="ignore"):
+            return ~(np.abs(x) <= self.limit)
+
+    def ok(self, x: NDArray[np.float64]) -> bool:
+        """True if ``x`` is plausible; else count and log it and return False."""
+        if not self.bad(x).any():
+            return True
+        self._reject(x)
+        return False
+
+    def clean(self, x: NDArray[np.float64], fill: float) -> NDArray[np.float64]:
+        """``x`` itself if plausible; else a copy with *every* element ``fill`` (counted)."""
+        if not self.bad(x).any():
+            return x
+        self._reject(x)
+        return np.full_like(x, fill)
+
+    def clean_each(self, x: NDArray[np.float64], fill: float) -> NDArray[np.float64]:
+        """``x`` with each implausible element replaced by ``fill`` (counted once per call)."""
+        b = self.bad(x)
+        if not b.any():
+            return x
+        self._reject(x)
+        return np.where(b, fill, x)
+
+    def _reject(self, x: NDArray[np.float64]) -> None:
+        self.rejected += 1
+        self.node.get_logger().warning(
+            f"{self.what}: rejected implausible input {np.array2string(x, precision=3)} "
+            f"(non-finite or |x| > {self.limit:g}); total {self.rejected}",
+            throttle_duration_sec=LOG_PERIOD_S)
