@@ -175,6 +175,8 @@ class HotPath:
                 if self._stop:
                     break
                 ready = ws.get_ready_entities("subscription")
+                if not ready and subs and subs[0] not in self.node.subscriptions:
+                    break  # the node was destroyed without stop(): nothing left to serve
                 with self.lock:
                     for h, ptr, typ, raw, handler in table:
                         if ptr not in ready:

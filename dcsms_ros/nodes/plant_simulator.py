@@ -139,9 +139,18 @@ class PlantSimulatorNode(Node, Stoppable):
         # lockstep timeouts/retransmissions and reports, under the same lock
         self._lock = threading.RLock()
         self.hot = HotPath(self, self._lock)
+        # real time: the forces are held values, so the hot thread does not wake for each one:
+        # it drains them at every sample (arrival times from the DDS reception stamps)
+        self._drained = not self.lockstep and self.hot.on
+        self._force_subs = []
         for cid in self.controllers:
-            self.hot.subscribe(WrenchStamped, topics.force_topic(cid),
-                               lambda m, c=cid: self._on_force(c, m), sub_qos)
+            if self._drained:
+                self._force_subs.append(
+                    (cid, self.hot.detached(WrenchStamped, topics.force_topic(cid), sub_qos)))
+            else:
+                self.hot.subscribe(WrenchStamped, topics.force_topic(cid),
+                                   lambda m, c=cid: self._on_force(c, m), sub_qos)
+        self._wall_to_mono = time.monotonic_ns() - time.time_ns()
         self._applied: tuple[np.ndarray, int] | None = None
         self._t_pub: list[int] = []  # timing_file: monotonic ns of each sample's publication
         self._lat: dict[str, list[int]] = {c: [] for c in self.controllers}
@@ -227,6 +236,8 @@ class PlantSimulatorNode(Node, Stoppable):
         self._t0 = now
         self._cpu[0] = time.process_time()
         self._rate_mark = (self.sim.k, now)
+        if self._drained:
+            self._tick_timer.cancel()  # real time steps on the hot thread: nothing left to poll
         self.hot.wake()
         self.get_logger().info("graph connected: stepping")
 
@@ -239,6 +250,11 @@ class PlantSimulatorNode(Node, Stoppable):
         """Real time on the hot thread: step what is due; seconds until the next sample."""
         if not self.started or self.finished:
             return None
+        for cid, sub in self._force_subs:
+            with sub.handle:
+                while (got := sub.handle.take_message(WrenchStamped, False)) is not None:
+                    self._on_force(cid, got[0], got[1]["received_timestamp"]
+                                   + self._wall_to_mono)
         self._realtime(time.monotonic())
         return self._t0 + self.sim.k / self.rate - time.monotonic()
 
@@ -323,14 +339,16 @@ class PlantSimulatorNode(Node, Stoppable):
         self._waiting = False
         self._advance({c: self._got.get(c, self._zero) for c in self.controllers})
 
-    def _on_force(self, cid: str, msg: WrenchStamped) -> None:
+    def _on_force(self, cid: str, msg: WrenchStamped, rx_ns: int | None = None) -> None:
+        """A force command; ``rx_ns``: its arrival (monotonic ns) when taken later (drained)."""
         w = self.force_guard.clean(wrench_array(msg, self.dof), 0.0)
+        now_ns = time.monotonic_ns() if rx_ns is None else rx_ns
         if self.timing_file:  # sensor-to-force latency: sample publication -> force arrival
             k = round(stamp_ns(msg.header.stamp) * self.rate / 1e9)
             if 0 <= k < len(self._t_pub):
-                self._lat[cid].append(time.monotonic_ns() - self._t_pub[k])
+                self._lat[cid].append(now_ns - self._t_pub[k])
         if not self.lockstep:
-            self._held[cid] = (w, time.monotonic())
+            self._held[cid] = (w, now_ns * 1e-9)
             return
         if cid in self._absent:
             self._absent.discard(cid)

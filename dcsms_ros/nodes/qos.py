@@ -30,7 +30,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 #: Writer/reader history of lockstep streams: samples a slow observer may lag behind.
 LOCKSTEP_DEPTH = 1000
 #: Writer history of real-time streams (50 ms at 2 kHz) for reliable observers.
-REALTIME_DEPTH = 100
+REALTIME_DEPTH = 2000
 
 
 def latched() -> QoSProfile:

@@ -82,6 +82,21 @@ def spin_until_stopped(node: Node, executor: Executor, stop: Callable[[], bool])
             raise hot.error  # a failing hot-path handler ends the node as a callback would
 
 
+def quiesce(executor: Executor, node: Node, timeout_s: float = 2.0) -> None:
+    """Stop scheduling ``node``'s callbacks and let the running ones finish completely.
+
+    A worker thread triggers the executor's guard condition *after* its callback's work is
+    accounted for; if ``shutdown()`` has destroyed that guard in between, the task stores an
+    ``InvalidHandle`` that rclpy prints at exit ("The following exception was never
+    retrieved: cannot use Destroyable ..."). Waiting here closes that window.
+    """
+    executor.remove_node(node)
+    tracker = getattr(executor, "_work_tracker", None)  # rclpy >= Jazzy
+    if tracker is not None:
+        tracker.wait(timeout_s)
+    time.sleep(0.05)  # the trailing guard-condition trigger of the last callback
+
+
 def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
         multithreaded: bool = False) -> int:
     """Create a node with ``factory(context=...)``, spin it, shut down cleanly.
@@ -121,6 +136,8 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
             spin_until_stopped(node, executor, lambda: stopped["flag"])
         finally:
             # let callbacks still running in worker threads end before the node goes away
+            if multithreaded:
+                quiesce(executor, node)
             executor.shutdown(timeout_sec=2.0)
     except DcsmsError as exc:
         print(f"dcsms: error: {exc}", file=sys.stderr, flush=True)

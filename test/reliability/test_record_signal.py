@@ -25,11 +25,14 @@ def get_message(msgtype: str) -> type:
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
-def _read(bag: Path) -> tuple[Counter, dict[str, set[int]], dict[str, dict[str, str]]]:
-    """Per-topic counts, distinct stamps (ns) of stamped topics, last status of every node."""
+def _read(bag: Path) -> tuple[Counter, dict[str, set[int]], dict[str, dict[str, str]],
+                             list[float]]:
+    """Per-topic counts, distinct stamps (ns) of stamped topics, last status of every node,
+    and the plant's simulated time in each of its reports."""
     counts: Counter = Counter()
     stamps: dict[str, set[int]] = defaultdict(set)
     final: dict[str, dict[str, str]] = {}
+    sim_times: list[float] = []
     with Reader(bag) as reader:
         types = {c.topic: get_message(c.msgtype) for c in reader.connections}
         for conn, _, raw in reader.messages():
@@ -38,10 +41,12 @@ def _read(bag: Path) -> tuple[Counter, dict[str, set[int]], dict[str, dict[str, 
             if isinstance(msg, DiagnosticArray):
                 for st in msg.status:
                     final[st.name] = {kv.key: kv.value for kv in st.values}
+                    if st.name == "plant_simulator":
+                        sim_times.append(float(final[st.name]["sim_time_s"]))
             elif hasattr(msg, "header"):
                 stamps[conn.topic].add(msg.header.stamp.sec * 1_000_000_000
                                        + msg.header.stamp.nanosec)
-    return counts, stamps, final
+    return counts, stamps, final, sim_times
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
@@ -63,7 +68,7 @@ def test_signal_to_recording_graph_leaves_complete_bag(sig, ctx, cfg, tmp_path):
         if up.poll() is None:
             up.kill()
         probe.close()
-    counts, stamps, final = _read(bag)
+    counts, stamps, final, _ = _read(bag)
     n = cfg.plant.num_stages
     plant, dec = final["plant_simulator"], final["sensor_decoupling"]
     k = int(plant["sample"])
