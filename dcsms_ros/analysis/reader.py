@@ -27,12 +27,17 @@ import yaml
 
 from dcsms_ros.analysis import cdr, mcapchunks
 from dcsms_ros.core import topics
-from dcsms_ros.core.config import SystemConfig, config_from_flat
+from dcsms_ros.core.config import (
+    SystemConfig,
+    config_from_flat,
+    params_text,
+    parse_params_text,
+)
 from dcsms_ros.errors import BagError, ConfigError
 
 #: std_msgs/String holding the flat parameters as YAML (published latched by the graph and
 #: written by the batch engine) so an analysis can rebuild the analytic model.
-CONFIG_TOPIC = "/dcsms/config"
+CONFIG_TOPIC = topics.CONFIG
 #: Twist components kept per body: x, y, z translations.
 KEPT_AXES = (0, 1, 2)
 AXIS_NAMES = ("x", "y", "z")
@@ -97,25 +102,28 @@ class BagData:
 
 
 def config_to_yaml(cfg: SystemConfig) -> str:
-    """The flat parameters of ``cfg`` as YAML text (``{dotted.name: value}``, sorted)."""
-    return yaml.safe_dump(dict(cfg.params or {}), sort_keys=True, default_flow_style=None)
+    """``cfg`` as the text of ``/dcsms/config``: a ROS 2 params file (see ``params_text``)."""
+    return params_text(cfg.params or {})
 
 
 def config_from_yaml(text: str, source: str = "/dcsms/config") -> SystemConfig:
-    """Rebuild a :class:`SystemConfig` from :func:`config_to_yaml` text.
+    """Rebuild a :class:`SystemConfig` from ``/dcsms/config`` text: a params file, or a plain
+    ``{dotted: value}`` mapping (bags written before the params-file form).
 
     Raises
     ------
     ConfigError
-        If the text is not a YAML mapping or a value is invalid; names ``source``.
+        If the text is not YAML of either form or a value is invalid; names ``source``.
     """
     try:
-        flat = yaml.safe_load(text)
+        doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source}: invalid YAML: {exc}") from None
-    if not isinstance(flat, dict):
-        raise ConfigError(f"{source}: expected a mapping of dotted parameter names")
-    return config_from_flat(flat, source)
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{source}: expected a ROS 2 params file or a mapping of dotted names")
+    if doc and all(isinstance(v, dict) and "ros__parameters" in v for v in doc.values()):
+        return config_from_flat(parse_params_text(text, source), source)
+    return config_from_flat(doc, source)
 
 
 def read_bag(path: str | Path, progress: Progress | None = None,

@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     if args.engine == "batch":
         _batch(cfg, modes, span, total, bag)
     else:
-        _graph(args, modes, span, total, bag, out)
+        _graph(args, cfg, modes, span, total, bag, out)
     print(f"dcsms demo: simulated and recorded in {time.monotonic() - t_wall:.0f} s; "
           f"analysing {bag}", flush=True)
     from dcsms_ros.analysis.report import analyze
@@ -103,15 +103,25 @@ def _batch(cfg: Any, modes: list[Mode], span: float, total: float, bag: Path) ->
     write_result_bag(res, bag)
 
 
-def _graph(args: argparse.Namespace, modes: list[Mode], span: float, total: float,
+def analysis_topics(num_stages: int) -> list[str]:
+    """What ``dcsms analyze`` reads: recording only these keeps the lockstep graph fast (the
+    plant skips its truth topics when nobody subscribes, the recorder has a third of the work)."""
+    from dcsms_ros.core import topics
+
+    return ([topics.velocity_topic(b) for b in topics.body_names(num_stages)]
+            + [topics.ACTUATORS_APPLIED, topics.MODE, topics.CONFIG])
+
+
+def _graph(args: argparse.Namespace, cfg: Any, modes: list[Mode], span: float, total: float,
            bag: Path, out: Path) -> None:
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     cmd = [sys.executable, "-m", "dcsms_ros.cli", "up", "--lockstep", "--mode", modes[0].label,
            "--duration", f"{total + 0.05:g}", "--record", str(bag),
+           "--record-topics", *analysis_topics(cfg.plant.num_stages),
            "--log-dir", str(out / "logs")]
     if args.config is not None:
         cmd += ["--config", str(args.config)]
-    for s in args.set:
+    for s in args.overrides:
         cmd += ["--set", s]
     log = (out / "up.log").open("w")
     up = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)

@@ -157,6 +157,9 @@ def register(subparsers: Any) -> None:
                    help="stop after S seconds of simulated time (default: until Ctrl-C)")
     p.add_argument("--record", type=Path, default=None, metavar="OUT",
                    help="record every /dcsms topic into the bag directory OUT")
+    p.add_argument("--record-topics", nargs="+", default=None, metavar="TOPIC",
+                   help="with --record: only these topics (e.g. the analysis set "
+                   "/dcsms/velocity/* /dcsms/actuators/applied /dcsms/mode /dcsms/config)")
     p.add_argument("--ground-from", default="", metavar="BAG[:TOPIC]",
                    help="replay a recorded ground velocity (TwistStamped, resampled to the "
                    "control rate) instead of white noise")
@@ -193,9 +196,11 @@ def run(args: argparse.Namespace) -> int:
     if args.record is not None:
         from dcsms_ros.cli.record import recorder_command  # the recorder is optional
 
-        kids.append(Child("recorder", recorder_command(args.record)))
-        if args.schedule == "lockstep":
-            observers += stream_topics(n)  # lockstep must not outrun the recorder's start
+        kids.append(Child("recorder", recorder_command(args.record, args.record_topics)))
+        if args.schedule == "lockstep":  # lockstep must not outrun the recorder's start
+            streams = stream_topics(n)
+            observers += [t for t in streams if not args.record_topics
+                          or t in args.record_topics]
     params_file = log_dir / "params.yaml"
     params_file.write_text(yaml.safe_dump(params_document(
         cfg, args.schedule, mode, args.duration or 0.0, observers, args.ground_from),

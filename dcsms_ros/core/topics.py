@@ -16,6 +16,8 @@ SENSORS_RAW = "/dcsms/sensors/raw"
 ACTUATORS_APPLIED = "/dcsms/actuators/applied"
 #: std_msgs/String, transient local depth 1: the current mode label (e.g. ``DFBC+FFC``).
 MODE = "/dcsms/mode"
+#: std_msgs/String, transient local depth 1: the configuration as a ROS 2 params file.
+CONFIG = "/dcsms/config"
 #: diagnostic_msgs/DiagnosticArray: faults, trips, counters.
 DIAGNOSTICS = "/dcsms/diagnostics"
 

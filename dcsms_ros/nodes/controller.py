@@ -130,9 +130,9 @@ class ControllerNode(Node, Stoppable):
         return self._matched
 
     def _on_velocity(self, msg: TwistStamped) -> None:
-        x = twist_array(msg, self.dof)
-        if not self.guard.ok(x):
-            return  # dropped whole (counted, logged): its stamp must not block later samples
+        # implausible (non-finite, > 10 m/s): counted and logged here, NaN for the loop, which
+        # answers it with zero force (lockstep goes on) and leaves its filters untouched
+        x = self.guard.clean(twist_array(msg, self.dof), np.nan)
         ns = stamp_ns(msg.header.stamp)
         if ns == self.last_ns and self._cache is not None:
             self.repeats += 1

@@ -2,9 +2,10 @@
 
 A value that is not finite, or whose magnitude no physical signal of this system can reach
 (:data:`MAX_VELOCITY_MPS` for geophone channels and twists, :data:`FORCE_LIMIT_FACTOR` times the
-actuator limit for force commands), is never used: the caller substitutes NaN (the core then
-zeroes that body and counts it) or zero force. Every rejected message is counted (reported in
-the node's diagnostics as ``rejected_inputs``) and logged at most every :data:`LOG_PERIOD_S`.
+actuator limit for force commands), is never used: a controller feeds NaN to its loop (zero
+force, filters untouched), the decoupling node reads that channel as NaN (the core zeroes the
+body), the plant takes zero force. Every rejected message is counted (diagnostics key
+``rejected_inputs``) and logged at most every :data:`LOG_PERIOD_S`.
 """
 
 from __future__ import annotations

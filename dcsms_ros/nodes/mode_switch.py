@@ -22,7 +22,6 @@ import threading
 import time
 
 import numpy as np
-import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -32,7 +31,7 @@ from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
 from dcsms_ros.core import topics
-from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.config import SystemConfig, params_text
 from dcsms_ros.core.modes import ALL_MODES, Mode, controller_ids, enabled_controllers, parse_mode
 from dcsms_ros.errors import ConfigError, ModeError
 from dcsms_ros.nodes import qos
@@ -45,13 +44,7 @@ from dcsms_ros.nodes.trip import TripMonitor
 #: Reader depth of the trip monitor's velocity streams, drained every 50 ms (samples).
 TRIP_DEPTH = 4000
 #: std_msgs/String, transient local: the flat parameters as params-file YAML.
-CONFIG_TOPIC = getattr(topics, "CONFIG", f"{topics.NAMESPACE}/config")
-
-
-def config_yaml(flat: dict) -> str:
-    """The flat parameters as a ROS 2 params file (``/**: ros__parameters: {dotted: value}``)."""
-    return yaml.safe_dump({"/**": {"ros__parameters": dict(sorted(flat.items()))}},
-                          sort_keys=False)
+CONFIG_TOPIC = topics.CONFIG
 
 
 class ModeSwitchNode(Node):
@@ -122,7 +115,7 @@ class ModeSwitchNode(Node):
         self.create_timer(0.5, self._reconcile, callback_group=services, clock=steady)
         self.create_timer(1.0, self._report, clock=steady)
         self._publish_mode()
-        self.pub_config.publish(String(data=config_yaml(self.params.flat)))
+        self.pub_config.publish(String(data=params_text(self.params.flat)))
         self.get_logger().info(f"mode {self.mode.label}; controllers {self.controllers}")
 
     def _make_monitors(self, cfg: SystemConfig) -> list[TripMonitor]:
@@ -133,7 +126,7 @@ class ModeSwitchNode(Node):
         if any(n.startswith("control.trip_") for n in changed):
             with self._buf_lock:
                 self._monitors = self._make_monitors(cfg)
-        self.pub_config.publish(String(data=config_yaml(self.params.flat)))
+        self.pub_config.publish(String(data=params_text(self.params.flat)))
 
     # -- switching ---------------------------------------------------------------------------
     def _call_all(self, states: dict[str, bool], timeout_s: float,

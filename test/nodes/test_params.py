@@ -53,8 +53,9 @@ def test_descriptors_and_rejections_with_reasons(ctx, cfg):
 
 def test_gain_change_retunes_the_running_loop(ctx, cfg):
     """A valid gain change is accepted and applied; the fade state is kept."""
+    # lockstep: enabled starts at full gain (real time fades in from zero)
     fb = FeedbackControllerNode(context=ctx, parameter_overrides=overrides(
-        cfg, stage=1, enabled=True))
+        cfg, stage=1, enabled=True, schedule="lockstep"))
     tool = rclpy.create_node("param_tool", context=ctx)
     client = AsyncParameterClient(tool, "/dcsms/fb_stage1")
     ex = executor_for(ctx, fb, tool)

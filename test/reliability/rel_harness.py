@@ -55,9 +55,42 @@ def report(row: str, fault: str, result: str, figure: str, **data: Any) -> None:
     print(f"\n[{row}] {fault}: {result} ({figure})")
 
 
+def assert_clean(logs: str) -> None:
+    """No traceback and no rclpy shutdown noise in the node logs."""
+    assert "Traceback" not in logs, logs[-3000:]
+    assert "never retrieved" not in logs, "an rclpy task failed silently at shutdown"
+
+
 def mono_ns() -> int:
     """CLOCK_MONOTONIC in ns: the same clock in every process on this host."""
     return time.monotonic_ns()
+
+
+class Jitter:
+    """Scheduling delay of this machine: a thread sleeps 1 ms in a loop and records by how much
+    each sleep overran. A user-space watchdog cannot act faster than the OS schedules it, so the
+    fault tests allow the overrun measured around the fault on top of their bound (and report
+    it: on an idle machine it is well under 1 ms)."""
+
+    def __init__(self) -> None:
+        self.samples: list[tuple[int, int]] = []
+        self._run = True
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _loop(self) -> None:
+        while self._run:
+            t = mono_ns()
+            time.sleep(0.001)
+            self.samples.append((t, mono_ns() - t - 1_000_000))
+
+    def worst(self, t0: int, t1: int) -> float:
+        """Largest overrun (s) of a sleep that started in [t0, t1] (monotonic ns)."""
+        return max((d for t, d in list(self.samples) if t0 <= t <= t1), default=0) / 1e9
+
+    def close(self) -> None:
+        self._run = False
+        self.thread.join(2)
 
 
 class Graph:

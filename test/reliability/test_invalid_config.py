@@ -6,7 +6,7 @@ import math
 
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.parameter import Parameter
-from rel_harness import Graph, Probe, call, report
+from rel_harness import Graph, Probe, assert_clean, call, report
 from test_trip import _call
 
 from dcsms_ros.core.modes import Mode
@@ -85,4 +85,4 @@ def test_invalid_values_files_and_modes_are_rejected(ctx, cfg, tmp_path):
         assert len(err.strip().splitlines()) == 1, f"{label}: not one line: {err}"
     assert still == ("DFBC", "1.000"), still
     assert all(c == 0 for c in codes.values()), codes
-    assert "Traceback" not in graph.logs()
+    assert_clean(graph.logs())

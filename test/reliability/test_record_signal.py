@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.serialization import deserialize_message
-from rel_harness import DCSMS, Probe, report
+from rel_harness import DCSMS, Probe, assert_clean, report
 from rosbags.rosbag2 import Reader
 
 from dcsms_ros.core import topics
@@ -88,7 +88,7 @@ def test_signal_to_recording_graph_leaves_complete_bag(sig, ctx, cfg, tmp_path):
            f" topics off; {len(counts)} topics", counts=dict(counts), expected=expect)
     assert up.returncode == 0, err
     assert "Traceback" not in err + out, err
-    assert not any("Traceback" in p.read_text() for p in logs.glob("*.log"))
+    assert_clean("\n".join(p.read_text() for p in logs.glob("*.log")))
     assert got == expect, {t: (got[t], expect[t]) for t in got if got[t] != expect[t]}
     # lockstep: every sample from 0 on, no gap (raw k+1 may be out, its answer cut by the stop)
     raw = sorted(stamps[topics.SENSORS_RAW])

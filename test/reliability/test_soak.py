@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
+import itertools
 import os
 import signal
 import subprocess
 import time
 from pathlib import Path
 
-import pytest
-from rel_harness import Graph, Probe, report
+from rel_harness import Graph, Probe, assert_clean, report
 from test_record_signal import _read
 
 from dcsms_ros.cli.record import recorder_command
@@ -32,15 +32,17 @@ def _rss_kb(pid: int) -> int:
 def test_soak_realtime_with_recording(request, ctx, cfg, tmp_path):
     """Real time + recording: RSS growth < 10 %, recorder lost nothing, sim time never stalls."""
     duration = float(os.environ.get("DCSMS_SOAK_S") or
-                     (FULL_S if request.config.getoption("--soak") else SHORT_S))
+                     (FULL_S if request.config.getoption("--soak", default=False) else SHORT_S))
     bodies = topics.body_names(cfg.plant.num_stages)
-    # 4 streams at 2 kHz (8k msg/s): decoupled velocities and applied forces (what the analysis
-    # reads), plus mode and diagnostics; the full set (~23k msg/s) is more than this 2-core box
-    # records without drops while it also runs the graph
-    recorded = [*(topics.velocity_topic(b) for b in bodies), topics.ACTUATORS_APPLIED,
-                topics.MODE, topics.DIAGNOSTICS]
+    # ground and top-stage velocities at 2 kHz (the transmissibility the analysis computes) and
+    # the applied forces, plus mode and diagnostics: 6k msg/s. The full set (~23k msg/s) is
+    # more than a shared 2-core box records without drops while it also runs the graph
+    recorded = [topics.velocity_topic(bodies[0]), topics.velocity_topic(bodies[-1]),
+                topics.ACTUATORS_APPLIED, topics.MODE, topics.DIAGNOSTICS]
     bag = tmp_path / "soak"
-    rec = subprocess.Popen(recorder_command(bag, recorded), stdout=subprocess.PIPE,
+    # reader history of 10 s per topic: the recorder may stall for seconds on a shared box
+    rec = subprocess.Popen([*recorder_command(bag, recorded), "--queue-depth", "20000"],
+                           stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
     probe = Probe(ctx)
     graph = Graph(cfg, tmp_path, mode=Mode.DFBC_FFC, extra={"plant_simulator": {
@@ -64,19 +66,18 @@ def test_soak_realtime_with_recording(request, ctx, cfg, tmp_path):
     finally:
         codes = graph.stop()
         rec.send_signal(signal.SIGINT)
-        rec_out, rec_err = rec.communicate(timeout=120)
+        _, rec_err = rec.communicate(timeout=120)
         probe.close()
     counts, stamps, final, sim_times = _read(bag)
     k = int(final["plant_simulator"]["sample"])
     dec = final["sensor_decoupling"]
     expect = {topics.ACTUATORS_APPLIED: k}
-    expect.update({topics.velocity_topic(b): int(dec["samples"]) + int(dec["repeats"])
-                   for b in bodies})
+    expect.update({t: int(dec["samples"]) + int(dec["repeats"]) for t in recorded[:2]})
     lost = {t: expect[t] - counts[t] for t in expect}
     applied_gaps = k - len(stamps[topics.ACTUATORS_APPLIED])
     growth = {n: (rss1[n] - rss0[n]) / rss0[n] for n in rss0}
     # the plant's own 1 Hz reports (steady clock), as recorded: each must show progress
-    steps = [b - a for a, b in zip(sim_times, sim_times[1:], strict=False)][:-1]
+    steps = [b - a for a, b in itertools.pairwise(sim_times)][:-1]
     wall = progress[-1][0] - progress[0][0]
     sim_rate = (progress[-1][1] - progress[0][1]) / wall
     worst = max(growth, key=lambda n: growth[n])
@@ -94,4 +95,4 @@ def test_soak_realtime_with_recording(request, ctx, cfg, tmp_path):
     assert applied_gaps == 0
     assert len(sim_times) >= 0.7 * duration, f"{len(sim_times)} plant reports in {duration} s"
     assert min(steps) > 0.0, f"sim time stalled: {steps}"  # advanced in every 1 s report
-    assert "Traceback" not in graph.logs()
+    assert_clean(graph.logs())
