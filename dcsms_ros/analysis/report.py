@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +17,7 @@ from dcsms_ros.analysis.reader import AXIS_NAMES, BagData, Progress, config_from
 from dcsms_ros.analysis.segments import MIN_SEGMENT_S, SETTLE_S, Segment, align, split_segments
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import parse_mode
+from dcsms_ros.jsonutil import jsonable
 
 #: Analytic and estimated transmissibility "disagree" beyond this (dB).
 DISAGREE_DB = 3.0
@@ -56,7 +56,7 @@ class Summary:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (no arrays of spectra; those go to the plots)."""
-        return _jsonable({
+        return jsonable({
             "bags": self.bags, "reference": self.reference, "axes": self.axes,
             "resonance_hz": self.resonance_hz, "config_source": self.config_source,
             "table4_definition": " ".join(self.definition.split()),
@@ -289,22 +289,6 @@ def _table4(results: list[dict[str, Any]], ref_label: str, summary: Summary) -> 
             norm, db = modetable.normalize(val, base)
             r["json"]["axes"][a].update(resonance_band_rms_mps=val, normalized=norm,
                                         attenuation_db=db)
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(x) else None
-    return x
 
 
 def dumps(summary: Summary) -> str:

@@ -9,16 +9,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from dcsms_ros.core.config import SystemConfig, load_config, parse_override
 from dcsms_ros.errors import ConfigError, DcsmsError
+from dcsms_ros.jsonutil import jsonable
 
 PACKAGE = "dcsms_ros"
 DEFAULT_PRESET = "table1.yaml"
@@ -100,26 +98,6 @@ def load_cfg(args: argparse.Namespace) -> SystemConfig:
     path = args.config if args.config is not None else default_config_path()
     overrides = dict(parse_override(text) for text in args.overrides)
     return load_config(path, overrides)
-
-
-def jsonable(x: Any) -> Any:
-    """Convert numpy scalars/arrays and complex numbers for :func:`json.dumps`; non-finite
-    floats become ``null`` (strict JSON has no Infinity/NaN)."""
-    if isinstance(x, dict):
-        return {str(k): jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return jsonable(x.tolist())
-    if isinstance(x, (complex, np.complexfloating)):
-        return [jsonable(float(x.real)), jsonable(float(x.imag))]
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(x) else None
-    return x
 
 
 def print_json(obj: Any) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from rel_harness import Graph, Jitter, Probe, assert_clean, report
 
 from dcsms_ros.core.modes import Mode, controller_ids
@@ -11,6 +12,9 @@ from dcsms_ros.core.modes import Mode, controller_ids
 MARGIN_S = 0.010
 
 
+# Multi-process timing on a shared 2-core machine: a scheduling hiccup can miss a bound
+# once; two reruns keep CI meaningful (every attempt must fail for a red run).
+@pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_killed_decoupling_zeroes_every_controller(ctx, cfg, tmp_path):
     """kill -9 sensor_decoupling: each controller publishes zero force within its timeout."""
     cids = controller_ids(cfg.plant.num_stages)

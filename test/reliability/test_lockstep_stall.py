@@ -5,6 +5,7 @@ from __future__ import annotations
 import signal
 import time
 
+import pytest
 from rel_harness import Graph, Probe, assert_clean, report
 
 from dcsms_ros.core.modes import Mode
@@ -16,6 +17,9 @@ def _sample(probe: Probe) -> int:
     return int(probe.value("plant_simulator", "sample", "0"))
 
 
+# Multi-process timing on a shared 2-core machine: a scheduling hiccup can miss a bound
+# once; two reruns keep CI meaningful (every attempt must fail for a red run).
+@pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_lockstep_plant_survives_a_silent_controller(ctx, cfg, tmp_path):
     """SIGSTOP then kill -9 of fb_stage2 in lockstep: the plant steps on, faults are counted."""
     probe = Probe(ctx)

@@ -49,6 +49,9 @@ def _read(bag: Path) -> tuple[Counter, dict[str, set[int]], dict[str, dict[str, 
     return counts, stamps, final, sim_times
 
 
+# Multi-process timing on a shared 2-core machine: a scheduling hiccup can miss a bound
+# once; two reruns keep CI meaningful (every attempt must fail for a red run).
+@pytest.mark.flaky(reruns=2, reruns_delay=2)
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_signal_to_recording_graph_leaves_complete_bag(sig, ctx, cfg, tmp_path):
     """Signal mid-run: exit 0, no traceback, bag counts equal the publishers' final counters."""

@@ -1,10 +1,12 @@
-"""Fixtures of the reliability tests: a private ROS domain per test, a probe context, config."""
+"""Fixtures shared by the ROS tests: a private ROS domain per test, private rclpy contexts and
+the Table 1 preset."""
 
 from __future__ import annotations
 
 import os
 import random
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 import rclpy
@@ -12,20 +14,21 @@ from rclpy.context import Context
 
 from dcsms_ros.core.config import SystemConfig, load_config
 
-TABLE1 = os.path.join(os.path.dirname(__file__), "..", "..", "config", "table1.yaml")
-# 150..229: apart from test/nodes (1..101) and test_recorder (100..229 random, rarely clashes)
-_DOMAINS = iter(random.Random(os.getpid() + 6).sample(range(150, 230), 80))
+TABLE1 = Path(__file__).resolve().parents[1] / "config" / "table1.yaml"
+# Every test of one run gets a different domain (Fast DDS allows 0..232 with default ports);
+# the pid seeds the order so two runs side by side rarely pick the same ids at the same time.
+_DOMAINS = iter(random.Random(os.getpid()).sample(range(1, 230), 229))
 
 
-def pytest_addoption(parser: pytest.Parser) -> None:
-    parser.addoption("--soak", action="store_true",
-                     help="run the reliability soak for 10 minutes (or DCSMS_SOAK_S seconds)")
+def unique_domain() -> int:
+    """The next unused ROS domain id of this test run."""
+    return next(_DOMAINS)
 
 
 @pytest.fixture
 def domain(monkeypatch: pytest.MonkeyPatch) -> int:
-    """This test's own ROS_DOMAIN_ID (also for child processes), localhost discovery."""
-    d = next(_DOMAINS)
+    """This test's own ROS_DOMAIN_ID (also exported to child processes), localhost only."""
+    d = unique_domain()
     monkeypatch.setenv("ROS_DOMAIN_ID", str(d))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     return d
