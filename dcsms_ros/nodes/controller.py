@@ -36,11 +36,11 @@ from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_array, wrench_msg
 from dcsms_ros.nodes.params import (
+    FirstSampleGate,
     NodeConfig,
     declare_local,
     declare_observed,
     declare_schedule,
-    publishers_matched,
 )
 from dcsms_ros.nodes.runtime import Stoppable, wait_acked
 
@@ -78,8 +78,7 @@ class ControllerNode(Node, Stoppable):
         self.observed = declare_observed(self)
         # lockstep: the first sample is answered only once the output reaches every reader
         # (the plant retransmits it), so an observer misses nothing; the loop is not stepped
-        self._match_t0: float | None = None
-        self._matched = not self.lockstep
+        self._gate = FirstSampleGate(self, self.lockstep, MATCH_TIMEOUT_S)
         cfg = self.params.cfg
         # lockstep starts at full gain, as the batch engine does; real time fades in from zero,
         # so a (re)started controller joins a running plant without a kick
@@ -118,16 +117,6 @@ class ControllerNode(Node, Stoppable):
         self.hot.start()
 
     # -- the loop ----------------------------------------------------------------------------
-    def _match_first_sample(self, pubs: list) -> bool:
-        """Lockstep: hold the first answer until every reader is matched (at most
-        MATCH_TIMEOUT_S; an incompatible reader must not stall the graph)."""
-        if self._match_t0 is None:
-            self._match_t0 = time.monotonic()
-        self._matched = publishers_matched(self, pubs, self.observed)
-        if not self._matched and time.monotonic() - self._match_t0 > MATCH_TIMEOUT_S:
-            self.get_logger().warning("not every reader matched; answering anyway")
-            self._matched = True
-        return self._matched
 
     def _on_velocity(self, msg: TwistStamped) -> None:
         # implausible (non-finite, > 10 m/s): counted and logged here, NaN for the loop, which
@@ -141,7 +130,7 @@ class ControllerNode(Node, Stoppable):
         if ns < self.last_ns:
             self.out_of_order += 1
             return
-        if not self._matched and not self._match_first_sample([self.pub]):
+        if not self._gate.ready([self.pub], self.observed):
             return
         if not self.lockstep and self.last_ns >= 0:
             # real time drops samples under load (keep-last 1): the fade follows the stamps,

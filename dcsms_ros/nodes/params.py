@@ -17,6 +17,7 @@ that error as the reason, and nothing changes. Accepted changes reach the node t
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -266,6 +267,30 @@ def declare_observed(node: Node) -> list[str]:
 
 #: Node names of the graph itself; a subscriber from any other node is an observer.
 GRAPH_NODES = ("plant_simulator", "sensor_decoupling", "mode_switch")
+
+
+class FirstSampleGate:
+    """Lockstep: hold a node's first answer until every reader of its publishers is matched,
+    at most ``timeout_s`` (an incompatible reader must not stall the graph). Open from the
+    start in real time."""
+
+    def __init__(self, node: Node, lockstep: bool, timeout_s: float = 5.0) -> None:
+        self._node = node
+        self._timeout_s = timeout_s
+        self._t0: float | None = None
+        self.open = not lockstep
+
+    def ready(self, pubs: list, observed: list[str]) -> bool:
+        """True once the first sample may go out (then always)."""
+        if self.open:
+            return True
+        if self._t0 is None:
+            self._t0 = time.monotonic()
+        self.open = publishers_matched(self._node, pubs, observed)
+        if not self.open and time.monotonic() - self._t0 > self._timeout_s:
+            self._node.get_logger().warning("not every reader matched; answering anyway")
+            self.open = True
+        return self.open
 
 
 def publishers_matched(node: Node, pubs: list, observed: list[str]) -> bool:

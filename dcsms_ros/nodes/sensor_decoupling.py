@@ -12,7 +12,6 @@ body (counted).
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -29,10 +28,10 @@ from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_msg
 from dcsms_ros.nodes.params import (
     SELECTORS,
+    FirstSampleGate,
     NodeConfig,
     declare_observed,
     declare_schedule,
-    publishers_matched,
 )
 from dcsms_ros.nodes.runtime import main_for, wait_acked
 
@@ -51,8 +50,7 @@ class SensorDecouplingNode(Node):
         lockstep = declare_schedule(self) == "lockstep"
         self.observed = declare_observed(self)
         # lockstep: answer the first sample only once every reader is matched (see controller)
-        self._match_t0: float | None = None
-        self._matched = not lockstep
+        self._gate = FirstSampleGate(self, lockstep, MATCH_TIMEOUT_S)
         self.dec = Decoupler(cfg)
         self.guard = InputGuard(self, "raw sensor channels", MAX_VELOCITY_MPS)
         self.dof = cfg.plant.dof
@@ -94,17 +92,6 @@ class SensorDecouplingNode(Node):
         out = np.where(idx >= 0, v[np.maximum(idx, 0)], np.nan)
         return out
 
-    def _match_first_sample(self, pubs: list) -> bool:
-        """Lockstep: hold the first answer until every reader is matched (at most
-        MATCH_TIMEOUT_S; an incompatible reader must not stall the graph)."""
-        if self._match_t0 is None:
-            self._match_t0 = time.monotonic()
-        self._matched = publishers_matched(self, pubs, self.observed)
-        if not self._matched and time.monotonic() - self._match_t0 > MATCH_TIMEOUT_S:
-            self.get_logger().warning("not every reader matched; answering anyway")
-            self._matched = True
-        return self._matched
-
     def _on_raw(self, msg: JointState) -> None:
         ns = stamp_ns(msg.header.stamp)
         # implausible channels are counted on arrival and read NaN (that body's twist is zero)
@@ -117,7 +104,7 @@ class SensorDecouplingNode(Node):
         if ns < self.last_ns:
             self.out_of_order += 1
             return
-        if not self._matched and not self._match_first_sample(self.pubs):
+        if not self._gate.ready(self.pubs, self.observed):
             return
         tw = self.dec.step(raw)
         self.last_ns = ns
