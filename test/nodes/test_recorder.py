@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -32,14 +31,13 @@ from std_msgs.msg import String
 from dcsms_ros.nodes.recorder import recorder_ready
 
 V1, V2, MODE = "/dcsms/velocity/stage1", "/dcsms/velocity/stage2", "/dcsms/mode"
-_DOMAINS = iter(random.Random(os.getpid()).sample(range(100, 230), 40))
 
 
 class Graph:
     """A publisher node in its own context and ROS domain, and a ``dcsms record`` child."""
 
-    def __init__(self, tmp: Path) -> None:
-        self.domain = next(_DOMAINS)
+    def __init__(self, tmp: Path, domain: int) -> None:
+        self.domain = domain
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain),
                         ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
         self.ctx = rclpy.Context()
@@ -92,9 +90,9 @@ class Graph:
 
 
 @pytest.fixture
-def graph(tmp_path: Path) -> Iterator[Graph]:
-    """A fresh publisher + recorder pair in an unused ROS domain."""
-    g = Graph(tmp_path)
+def graph(tmp_path: Path, domain: int) -> Iterator[Graph]:
+    """A fresh publisher + recorder pair in this test's own ROS domain."""
+    g = Graph(tmp_path, domain)
     yield g
     g.close()
 
@@ -199,9 +197,9 @@ def test_existing_out_is_one_line_error(tmp_path: Path,
     assert err.count("\n") == 1 and "exists already" in err
 
 
-def test_duration_ends_recording(tmp_path: Path) -> None:
+def test_duration_ends_recording(tmp_path: Path, domain: int) -> None:
     """--duration stops the recorder by itself; an empty recording is still a valid bag."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(next(_DOMAINS)))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
     proc = subprocess.run([sys.executable, "-m", "dcsms_ros.cli", "record", str(tmp_path / "b"),
                            "--duration", "1", "--storage", "sqlite3"], check=False, env=env,
                           capture_output=True, text=True, timeout=60)
