@@ -7,6 +7,7 @@ Stamps are handled as integer nanoseconds so that lockstep matching is exact.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -34,25 +35,33 @@ def sample_ns(k: int, rate_hz: float) -> int:
     return int(round(k * NS / rate_hz))
 
 
+def _put6(a: Any, b: Any, v: Array) -> None:
+    """Write a (dof,) vector into two Vector3s (linear/angular, force/torque); 1dof: ``a.z``."""
+    if v.shape[0] == 1:
+        a.z = float(v[0])
+    else:
+        a.x, a.y, a.z, b.x, b.y, b.z = (float(x) for x in v[:6])
+
+
+def _get6(a: Any, b: Any, dof: int) -> Array:
+    """Read two Vector3s back as a (dof,) vector; 1dof keeps ``a.z`` only."""
+    if dof == 1:
+        return np.array([a.z])
+    return np.array([a.x, a.y, a.z, b.x, b.y, b.z])
+
+
 def twist_msg(v: Array, ns: int, frame: str) -> TwistStamped:
     """Twist (dof,) m/s, rad/s -> TwistStamped in ``frame``."""
     m = TwistStamped()
     m.header.stamp = to_stamp(ns)
     m.header.frame_id = frame
-    if v.shape[0] == 1:
-        m.twist.linear.z = float(v[0])
-    else:
-        lin, ang = m.twist.linear, m.twist.angular
-        lin.x, lin.y, lin.z, ang.x, ang.y, ang.z = (float(x) for x in v[:6])
+    _put6(m.twist.linear, m.twist.angular, v)
     return m
 
 
 def twist_array(m: TwistStamped, dof: int) -> Array:
     """TwistStamped -> (dof,) array; 1dof keeps ``linear.z`` only."""
-    lin, ang = m.twist.linear, m.twist.angular
-    if dof == 1:
-        return np.array([lin.z])
-    return np.array([lin.x, lin.y, lin.z, ang.x, ang.y, ang.z])
+    return _get6(m.twist.linear, m.twist.angular, dof)
 
 
 def wrench_msg(w: Array, ns: int, frame: str) -> WrenchStamped:
@@ -60,20 +69,13 @@ def wrench_msg(w: Array, ns: int, frame: str) -> WrenchStamped:
     m = WrenchStamped()
     m.header.stamp = to_stamp(ns)
     m.header.frame_id = frame
-    if w.shape[0] == 1:
-        m.wrench.force.z = float(w[0])
-    else:
-        f, t = m.wrench.force, m.wrench.torque
-        f.x, f.y, f.z, t.x, t.y, t.z = (float(x) for x in w[:6])
+    _put6(m.wrench.force, m.wrench.torque, w)
     return m
 
 
 def wrench_array(m: WrenchStamped, dof: int) -> Array:
     """WrenchStamped -> (dof,) array; 1dof keeps ``force.z`` only."""
-    f, t = m.wrench.force, m.wrench.torque
-    if dof == 1:
-        return np.array([f.z])
-    return np.array([f.x, f.y, f.z, t.x, t.y, t.z])
+    return _get6(m.wrench.force, m.wrench.torque, dof)
 
 
 def joint_state(names: Sequence[str], ns: int, velocity: Array | None = None,
