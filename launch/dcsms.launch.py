@@ -44,7 +44,7 @@ def _nodes(context, *args, **kwargs):
         Node(package=PACKAGE, executable="sensor_decoupling", name="sensor_decoupling",
              namespace=NAMESPACE, parameters=[config, common, sim], output="screen"),
         Node(package=PACKAGE, executable="mode_switch", name="mode_switch",
-             namespace=NAMESPACE, parameters=[config, common, sim, {"initial_mode": mode}],
+             namespace=NAMESPACE, parameters=[config, common, {"initial_mode": mode}],
              output="screen"),
         Node(package=PACKAGE, executable="feedforward_controller", name="ff_stage1",
              namespace=NAMESPACE,

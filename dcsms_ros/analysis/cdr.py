@@ -143,6 +143,13 @@ def _layout(msgtype: str, frame_id: str = "", names: Sequence[str] = (),
     return lay
 
 
+def message_layout(msgtype: str, frame_id: str = "", names: Sequence[str] = (),
+                   counts: Sequence[int] = (0, 0, 0)) -> _Layout:
+    """Byte template of one message: ``buf`` (bytes with zero numbers) and ``fields``
+    (name -> (byte offset, dtype, count)); ``counts``: JointState position/velocity/effort."""
+    return _layout(msgtype, frame_id, names, counts)
+
+
 def _split_ns(stamp_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t = np.asarray(stamp_ns, dtype=np.int64)
     return (t // _NS).astype("<i4"), (t % _NS).astype("<u4")  # ROS Time: nanosec in [0, 1e9)
@@ -401,5 +408,5 @@ __all__ = [
     "CLOCK", "JOINT_STATE", "STRING", "SUPPORTED", "TWIST_STAMPED", "WRENCH_STAMPED", "Batch",
     "decode_batch", "decode_rows",
     "decode_string", "encode_clock", "encode_joint_state", "encode_stamped",
-    "encode_string", "typestore",
+    "encode_string", "message_layout", "typestore",
 ]

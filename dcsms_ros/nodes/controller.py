@@ -1,7 +1,8 @@
 """Shared adapter of the feedback and feedforward controller nodes.
 
 One sample: ``/dcsms/velocity/<body>`` (TwistStamped) -> ``loop.step`` -> ``/dcsms/force/<id>``
-(WrenchStamped, frame_id = the stage the actuators push, stamp = the input's stamp). The node
+(WrenchStamped, frame_id = the stage the actuators push, stamp = the input's stamp), both as
+serialized CDR (:mod:`.wire`: no Python message objects per sample). The node
 publishes for every sample, zero while disabled, because the lockstep plant waits for every
 controller. A repeated stamp (lockstep retransmission) is answered from the cache; an older stamp
 is ignored. ``~/enable`` (std_srvs/SetBool) fades the loop in or out over
@@ -10,8 +11,9 @@ engine starts the controllers of its initial mode, and fades it in from zero in 
 restarted controller rejoins a running plant without a kick).
 
 Real time only: a watchdog publishes zero force while no input arrived for
-``control.input_timeout_s`` (steady wall clock, checked every quarter timeout). In lockstep
-the plant's own timeout covers a silent input, and a pause of the plant is not a fault.
+``control.input_timeout_s`` (steady wall clock; on the hot thread, whose wait ends at the
+deadline, else a timer every quarter timeout). In lockstep the plant's own timeout covers a
+silent input, and a pause of the plant is not a fault.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_array, wrench_msg
+from dcsms_ros.nodes.msgs import status, to_stamp
 from dcsms_ros.nodes.params import (
     FirstSampleGate,
     NodeConfig,
@@ -43,6 +45,7 @@ from dcsms_ros.nodes.params import (
     declare_schedule,
 )
 from dcsms_ros.nodes.runtime import Stoppable, wait_acked
+from dcsms_ros.nodes.wire import StampedWriter, read_stamped
 
 #: Longest hold of the first lockstep answer while readers match, s.
 MATCH_TIMEOUT_S = 5.0
@@ -89,16 +92,17 @@ class ControllerNode(Node, Stoppable):
         self.rate = cfg.plant.rate_hz
         self.guard = InputGuard(self, f"{cid} velocity", MAX_VELOCITY_MPS)
         self.frame = f"stage{controller_stage(cid)}"
+        self.writer = StampedWriter(WrenchStamped, self.frame, self.dof)
         self.input_timeout_s = cfg.control.input_timeout_s
         self.pub = self.create_publisher(WrenchStamped, topics.force_topic(cid),
                                          qos.stream_pub(self.lockstep))
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         self.hot.subscribe(TwistStamped, topics.velocity_topic(body), self._on_velocity,
-                           qos.stream_sub(self.lockstep))
+                           qos.stream_sub(self.lockstep), raw=True)
         self.create_service(SetBool, "~/enable", self._on_enable)
         self._zero = np.zeros(self.dof)
         self.last_ns = -1
-        self._cache: WrenchStamped | None = None
+        self._cache: bytes | None = None
         self._t_in = None
         self.stale = False
         self.samples = self.repeats = self.out_of_order = 0
@@ -106,7 +110,11 @@ class ControllerNode(Node, Stoppable):
         self.stale_at_mono_ns = 0
         self.changed_at_ns = -1
         self._seen = (0, 0)
-        if not self.lockstep:
+        if not self.lockstep and self.hot.on:
+            # on the hot thread: its wait times out at the deadline, so a silent input is
+            # caught on time without waking the executor at 400 Hz (~6 % of a core)
+            self.hot.set_tick(self._hot_watchdog)
+        elif not self.lockstep:
             # steady clock: sim time only advances with /clock (100 Hz), too coarse for 10 ms
             self.create_timer(max(self.input_timeout_s / 4.0, 1e-3), self._watchdog,
                               clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -118,11 +126,11 @@ class ControllerNode(Node, Stoppable):
 
     # -- the loop ----------------------------------------------------------------------------
 
-    def _on_velocity(self, msg: TwistStamped) -> None:
+    def _on_velocity(self, buf: bytes) -> None:
+        ns, x = read_stamped(buf, TwistStamped, self.dof)
         # implausible (non-finite, > 10 m/s): counted and logged here, NaN for the loop, which
         # answers it with zero force (lockstep goes on) and leaves its filters untouched
-        x = self.guard.clean(twist_array(msg, self.dof), np.nan)
-        ns = stamp_ns(msg.header.stamp)
+        x = self.guard.clean(x, np.nan)
         if ns == self.last_ns and self._cache is not None:
             self.repeats += 1
             self.pub.publish(self._cache)
@@ -148,7 +156,7 @@ class ControllerNode(Node, Stoppable):
         if not np.isfinite(w).all():  # defensive: a NaN must never reach an actuator
             self.nonfinite_out += 1
             w = self._zero
-        self._cache = wrench_msg(w, ns, self.frame)
+        self._cache = self.writer.encode(ns, w)
         self.pub.publish(self._cache)
         self.samples += 1
         seen = (self.loop.nonfinite, self.loop.saturations)
@@ -165,6 +173,16 @@ class ControllerNode(Node, Stoppable):
         with self._lock:
             self._watchdog_locked()
 
+    def _hot_watchdog(self) -> float | None:
+        """Hot-thread tick: the watchdog when due; seconds until it is due again."""
+        if self._t_in is None:
+            return None
+        left = self._t_in + self.input_timeout_s - time.monotonic()
+        if left > 0.0:
+            return left
+        self._watchdog_locked()  # zero force, repeated every quarter timeout while silent
+        return max(self.input_timeout_s / 4.0, 1e-3)
+
     def _watchdog_locked(self) -> None:
         if self._t_in is None:
             return
@@ -177,7 +195,7 @@ class ControllerNode(Node, Stoppable):
             self.stale_at_mono_ns = time.monotonic_ns()  # compared with a kill time by tests
             self.get_logger().warning(f"{self.cid}: no input for {self.input_timeout_s:g} s: "
                                       f"zero force", throttle_duration_sec=2.0)
-        self.pub.publish(wrench_msg(self._zero, now.nanoseconds, self.frame))
+        self.pub.publish(self.writer.encode(now.nanoseconds, self._zero))
 
     def _on_enable(self, request: SetBool.Request, response: SetBool.Response):
         with self._lock:

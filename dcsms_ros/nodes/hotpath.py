@@ -83,19 +83,21 @@ class HotPath:
         self.messages = 0
 
     def subscribe(self, msg_type: Any, topic: str, handler: Callable[[Any], None],
-                  qos: QoSProfile) -> Subscription:
-        """A subscription served by the hot thread (or by the executor when the path is off)."""
+                  qos: QoSProfile, raw: bool = False) -> Subscription:
+        """A subscription served by the hot thread (or by the executor when the path is off);
+        ``raw``: the handler gets the serialized bytes (see :mod:`.wire`)."""
         if not self.on:
-            return self.node.create_subscription(msg_type, topic, handler, qos)
+            return self.node.create_subscription(msg_type, topic, handler, qos, raw=raw)
         sub = self.node.create_subscription(msg_type, topic, handler, qos,
-                                            callback_group=self._group)
+                                            callback_group=self._group, raw=raw)
         self._subs.append((sub, handler))
         return sub
 
-    def detached(self, msg_type: Any, topic: str, qos: QoSProfile) -> Subscription:
+    def detached(self, msg_type: Any, topic: str, qos: QoSProfile,
+                 raw: bool = False) -> Subscription:
         """A subscription nobody waits on; empty it with :meth:`drain`."""
         return self.node.create_subscription(msg_type, topic, lambda m: None, qos,
-                                             callback_group=self._group)
+                                             callback_group=self._group, raw=raw)
 
     @staticmethod
     def drain(sub: Subscription, handler: Callable[[Any], None], limit: int = 100000) -> int:

@@ -36,10 +36,11 @@ from dcsms_ros.core.modes import ALL_MODES, Mode, controller_ids, enabled_contro
 from dcsms_ros.errors import ConfigError, ModeError
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import stamp_ns, status, twist_array
+from dcsms_ros.nodes.msgs import status, to_stamp
 from dcsms_ros.nodes.params import SELECTORS, NodeConfig, declare_local, declare_schedule
 from dcsms_ros.nodes.runtime import main_for
 from dcsms_ros.nodes.trip import TripMonitor
+from dcsms_ros.nodes.wire import read_stamped
 
 #: Reader depth of the trip monitor's velocity streams, drained every 50 ms (samples).
 TRIP_DEPTH = 4000
@@ -104,12 +105,13 @@ class ModeSwitchNode(Node):
             trip_qos = qos.stream_pub(lockstep)
             trip_qos.depth = TRIP_DEPTH
             self._trip_subs = [self._hot.detached(TwistStamped, topics.velocity_topic(
-                f"stage{i + 1}"), trip_qos) for i in range(n)]
+                f"stage{i + 1}"), trip_qos, raw=True) for i in range(n)]
         elif self.trip_enabled:  # DCSMS_HOT_PATH=0: one executor callback per sample
             for i in range(n):
                 self.create_subscription(TwistStamped, topics.velocity_topic(f"stage{i + 1}"),
                                          lambda m, i=i: self._on_velocity(i, m),
-                                         qos.stream_pub(lockstep), callback_group=stream)
+                                         qos.stream_pub(lockstep), callback_group=stream,
+                                         raw=True)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(0.05, self._check_trip, callback_group=stream, clock=steady)
         self.create_timer(0.5, self._reconcile, callback_group=services, clock=steady)
@@ -229,9 +231,9 @@ class ModeSwitchNode(Node):
             self._ready[c] = ready
 
     # -- trip --------------------------------------------------------------------------------
-    def _on_velocity(self, i: int, msg: TwistStamped) -> None:
-        self._buffers[i].append(twist_array(msg, self._monitors[i].channels))
-        self._newest_ns = stamp_ns(msg.header.stamp)
+    def _on_velocity(self, i: int, buf: bytes) -> None:
+        self._newest_ns, v = read_stamped(buf, TwistStamped, self._monitors[i].channels)
+        self._buffers[i].append(v)
 
     def _check_trip(self) -> None:
         for i, sub in enumerate(self._trip_subs):
@@ -299,7 +301,9 @@ class ModeSwitchNode(Node):
                        for i, m in enumerate(self._monitors)})
         values.update({c: "present" if r else "absent" for c, r in self._ready.items()})
         arr = DiagnosticArray()
-        arr.header.stamp = self.get_clock().now().to_msg()
+        # sample time like the other nodes' reports (the node itself runs on the wall clock)
+        arr.header.stamp = (to_stamp(self._newest_ns) if self._newest_ns
+                            else self.get_clock().now().to_msg())
         arr.status = [status("mode_switch", level, msg, values)]
         self.pub_diag.publish(arr)
 

@@ -43,15 +43,7 @@ from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.guard import FORCE_LIMIT_FACTOR, InputGuard
 from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import (
-    joint_state,
-    sample_ns,
-    stamp_ns,
-    status,
-    to_stamp,
-    twist_msg,
-    wrench_array,
-)
+from dcsms_ros.nodes.msgs import sample_ns, status, to_stamp
 from dcsms_ros.nodes.params import (
     GRAPH_NODES,
     SELECTORS,
@@ -62,6 +54,7 @@ from dcsms_ros.nodes.params import (
     publishers_matched,
 )
 from dcsms_ros.nodes.runtime import Stoppable, main_for, wait_acked
+from dcsms_ros.nodes.wire import JointStateWriter, StampedWriter, read_stamped
 
 #: Real time: at most this many samples are computed in one timer callback to catch up.
 MAX_BURST = 20
@@ -146,10 +139,15 @@ class PlantSimulatorNode(Node, Stoppable):
         for cid in self.controllers:
             if self._drained:
                 self._force_subs.append(
-                    (cid, self.hot.detached(WrenchStamped, topics.force_topic(cid), sub_qos)))
+                    (cid, self.hot.detached(WrenchStamped, topics.force_topic(cid), sub_qos,
+                                            raw=True)))
             else:
                 self.hot.subscribe(WrenchStamped, topics.force_topic(cid),
-                                   lambda m, c=cid: self._on_force(c, m), sub_qos)
+                                   lambda m, c=cid: self._on_force(c, m), sub_qos, raw=True)
+        # the per-sample messages are serialized here directly (wire.py: no message objects)
+        self._w_raw = JointStateWriter(self.channel_names, "velocity")
+        self._w_applied = JointStateWriter(self.sim.actuator_names, "effort")
+        self._w_truth = [StampedWriter(TwistStamped, b, self.dof) for b in self.bodies]
         self._wall_to_mono = time.monotonic_ns() - time.time_ns()
         self._applied: tuple[np.ndarray, int] | None = None
         self._t_pub: list[int] = []  # timing_file: monotonic ns of each sample's publication
@@ -252,7 +250,7 @@ class PlantSimulatorNode(Node, Stoppable):
             return None
         for cid, sub in self._force_subs:
             with sub.handle:
-                while (got := sub.handle.take_message(WrenchStamped, False)) is not None:
+                while (got := sub.handle.take_message(WrenchStamped, True)) is not None:
                     self._on_force(cid, got[0], got[1]["received_timestamp"]
                                    + self._wall_to_mono)
         self._realtime(time.monotonic())
@@ -291,14 +289,14 @@ class PlantSimulatorNode(Node, Stoppable):
             self._t_pub.append(time.monotonic_ns())
         truth = self.sim.truth().copy()
         raw = self.sim.measure()
-        self._raw_msg = joint_state(self.channel_names, ns, velocity=raw)
+        self._raw_msg = self._w_raw.encode(ns, raw)
         self.pub_raw.publish(self._raw_msg)
         self._flush_applied()
         if self.sim.k % self.clock_every == 0:
             self.pub_clock.publish(ClockMsg(clock=to_stamp(ns)))
         for b, (pub, v) in enumerate(zip(self.pub_truth, truth, strict=False)):
             if pub.get_subscription_count():
-                pub.publish(twist_msg(v, ns, self.bodies[b]))
+                pub.publish(self._w_truth[b].encode(ns, v))
 
     def _flush_applied(self) -> None:
         """Publish the applied forces held back by :meth:`_advance` (lockstep)."""
@@ -306,8 +304,7 @@ class PlantSimulatorNode(Node, Stoppable):
             applied, ns = self._applied
             self._applied = None
             if self.pub_applied.get_subscription_count():
-                self.pub_applied.publish(joint_state(self.sim.actuator_names, ns,
-                                                     effort=applied))
+                self.pub_applied.publish(self._w_applied.encode(ns, applied))
 
     def _advance(self, wrenches: dict[str, np.ndarray]) -> None:
         applied = self.sim.advance(wrenches)
@@ -339,12 +336,14 @@ class PlantSimulatorNode(Node, Stoppable):
         self._waiting = False
         self._advance({c: self._got.get(c, self._zero) for c in self.controllers})
 
-    def _on_force(self, cid: str, msg: WrenchStamped, rx_ns: int | None = None) -> None:
-        """A force command; ``rx_ns``: its arrival (monotonic ns) when taken later (drained)."""
-        w = self.force_guard.clean(wrench_array(msg, self.dof), 0.0)
+    def _on_force(self, cid: str, buf: bytes, rx_ns: int | None = None) -> None:
+        """A force command (serialized); ``rx_ns``: its arrival (monotonic ns) when taken
+        later (drained)."""
+        stamp, w = read_stamped(buf, WrenchStamped, self.dof)
+        w = self.force_guard.clean(w, 0.0)
         now_ns = time.monotonic_ns() if rx_ns is None else rx_ns
         if self.timing_file:  # sensor-to-force latency: sample publication -> force arrival
-            k = round(stamp_ns(msg.header.stamp) * self.rate / 1e9)
+            k = round(stamp * self.rate / 1e9)
             if 0 <= k < len(self._t_pub):
                 self._lat[cid].append(now_ns - self._t_pub[k])
         if not self.lockstep:
@@ -353,7 +352,7 @@ class PlantSimulatorNode(Node, Stoppable):
         if cid in self._absent:
             self._absent.discard(cid)
             self.get_logger().info(f"{cid} is back")
-        if not self._waiting or stamp_ns(msg.header.stamp) != self._ns or cid in self._got:
+        if not self._waiting or stamp != self._ns or cid in self._got:
             return  # a repeated or late reply: the first one for a sample counts
         self._got[cid] = w
         self._consec[cid] = 0

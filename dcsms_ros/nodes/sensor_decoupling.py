@@ -3,8 +3,9 @@
 Subscribes to ``/dcsms/sensors/raw`` (``sensor_msgs/JointState``, ``velocity`` m/s), runs
 :class:`~dcsms_ros.core.decoupling.Decoupler` once per sample and publishes
 ``/dcsms/velocity/<body>`` (``geometry_msgs/TwistStamped``, frame_id = body) with the sample's
-stamp. A repeated stamp (lockstep retransmission) is answered from the cache without stepping the
-filters again; an older stamp is ignored. Channels are matched by name, so a publisher may send
+stamp; both sides as serialized CDR (:mod:`.wire`). A repeated stamp (lockstep
+retransmission) is answered from the cache without stepping the filters again; an older stamp
+is ignored. Channels are matched by name, so a publisher may send
 them in any order; a missing channel reads NaN, which the core turns into a zero twist for that
 body (counted).
 """
@@ -25,7 +26,7 @@ from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import stamp_ns, status, to_stamp, twist_msg
+from dcsms_ros.nodes.msgs import status, to_stamp
 from dcsms_ros.nodes.params import (
     SELECTORS,
     FirstSampleGate,
@@ -34,6 +35,7 @@ from dcsms_ros.nodes.params import (
     declare_schedule,
 )
 from dcsms_ros.nodes.runtime import main_for, wait_acked
+from dcsms_ros.nodes.wire import StampedWriter, names_blob, names_of, read_joint_state
 
 #: Longest hold of the first lockstep answer while readers match, s.
 MATCH_TIMEOUT_S = 5.0
@@ -56,14 +58,17 @@ class SensorDecouplingNode(Node):
         self.dof = cfg.plant.dof
         self.bodies = topics.body_names(cfg.plant.num_stages)
         self.names = list(self.dec.channel_names)
+        self._blob = names_blob(self.names)
         self._index: dict[tuple[str, ...], np.ndarray] = {}
+        self.writers = [StampedWriter(TwistStamped, b, self.dof) for b in self.bodies]
         self.pubs = [self.create_publisher(TwistStamped, topics.velocity_topic(b),
                                            qos.stream_pub(lockstep)) for b in self.bodies]
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         self.hot = HotPath(self, threading.Lock())  # _on_raw runs on the hot thread
-        self.hot.subscribe(JointState, topics.SENSORS_RAW, self._on_raw, qos.stream_sub(lockstep))
+        self.hot.subscribe(JointState, topics.SENSORS_RAW, self._on_raw, qos.stream_sub(lockstep),
+                           raw=True)
         self.last_ns = -1
-        self._cache: list[TwistStamped] = []
+        self._cache: list[bytes] = []
         self.samples = 0
         self.repeats = 0
         self.out_of_order = 0
@@ -71,12 +76,14 @@ class SensorDecouplingNode(Node):
         self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.hot.start()
 
-    def _channels(self, msg: JointState) -> np.ndarray:
-        """Channel velocities in the decoupler's order (NaN where missing)."""
-        v = np.asarray(msg.velocity, dtype=np.float64)
-        if list(msg.name) == self.names and v.shape[0] == len(self.names):
-            return v  # the plant's own order: the common, cheap case
-        key = tuple(msg.name)
+    def _channels(self, names: bytes | list[str], v: np.ndarray) -> np.ndarray:
+        """Channel velocities in the decoupler's order (NaN where missing); ``names`` raw (see
+        :func:`.wire.read_joint_state`) or decoded."""
+        if names == self._blob and v.shape[0] == len(self.names):
+            return v  # the plant's own names and order: the common, cheap case
+        key = tuple(names_of(names) if isinstance(names, bytes) else names)
+        if list(key) == self.names and v.shape[0] == len(self.names):
+            return v
         idx = self._index.get(key)
         if idx is None:
             pos = {n: i for i, n in enumerate(key)}
@@ -92,10 +99,10 @@ class SensorDecouplingNode(Node):
         out = np.where(idx >= 0, v[np.maximum(idx, 0)], np.nan)
         return out
 
-    def _on_raw(self, msg: JointState) -> None:
-        ns = stamp_ns(msg.header.stamp)
+    def _on_raw(self, buf: bytes) -> None:
+        ns, names, v = read_joint_state(buf)
         # implausible channels are counted on arrival and read NaN (that body's twist is zero)
-        raw = self.guard.clean_each(self._channels(msg), np.nan)
+        raw = self.guard.clean_each(self._channels(names, v), np.nan)
         if ns == self.last_ns:
             self.repeats += 1
             for pub, m in zip(self.pubs, self._cache, strict=True):
@@ -109,7 +116,7 @@ class SensorDecouplingNode(Node):
         tw = self.dec.step(raw)
         self.last_ns = ns
         self.samples += 1
-        self._cache = [twist_msg(tw[i], ns, b) for i, b in enumerate(self.bodies)]
+        self._cache = [w.encode(ns, tw[i]) for i, w in enumerate(self.writers)]
         for pub, m in zip(self.pubs, self._cache, strict=True):
             pub.publish(m)
         if self.dec.nonfinite:
