@@ -34,3 +34,12 @@ def test_demo_refuses_to_replace_a_foreign_directory(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not overwriting" in err[0]
     assert (out / "notes.txt").read_text() == "keep me"
+
+
+def test_demo_with_a_mode_subset_is_judged_on_the_modes_it_ran(tmp_path, capsys):
+    """--modes Passive,DFBC+FFC: exit 0, the ordering of those two, the skipped ones named."""
+    out = tmp_path / "sub"
+    assert main(["demo", "--engine", "batch", "--modes", "Passive,DFBC+FFC", "--segment", "7",
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "Passive > DFBC+FFC: reproduced (not run: FBC, FBC+FFC, DFBC)" in text
