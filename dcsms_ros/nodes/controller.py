@@ -8,7 +8,8 @@ controller. A repeated stamp (lockstep retransmission) is answered from the cach
 is ignored. ``~/enable`` (std_srvs/SetBool) fades the loop in or out over
 ``control.fade_time_s``; parameter ``enabled`` starts it at full gain in lockstep, as the batch
 engine starts the controllers of its initial mode, and fades it in from zero in real time (a
-restarted controller rejoins a running plant without a kick).
+restarted controller rejoins a running plant without a kick): the loop starts, primed, only once
+the plant's reader matched the force publisher (zero force until then).
 
 Real time only: a watchdog publishes zero force while no input arrived for
 ``control.input_timeout_s`` (steady wall clock; on the hot thread, whose wait ends at the
@@ -76,6 +77,10 @@ class ControllerNode(Node, Stoppable):
         self.hot = HotPath(self, self._lock)
         self.params = NodeConfig(self, select, self._on_change_locked)
         self.lockstep = declare_schedule(self) == "lockstep"
+        # the actuator side: the plant in simulation, the rig's actuator driver on hardware
+        self.force_reader = declare_local(self, "force_reader", "plant_simulator", "Real "
+                                          "time: node whose reader of the force topic must be "
+                                          "matched before the loop starts (empty: any reader)")
         enabled = declare_local(self, "enabled", False, "Start enabled at full gain (no fade), "
                                 "as the batch engine starts its initial mode")
         self.observed = declare_observed(self)
@@ -110,6 +115,11 @@ class ControllerNode(Node, Stoppable):
         self.stale_at_mono_ns = 0
         self.changed_at_ns = -1
         self._seen = (0, 0)
+        self.boot_ns = time.time_ns()  # tells mode_switch a restarted process from the old one
+        # real time: the loop is stepped (its fade runs) only once its output reaches the plant
+        self._linked = self.lockstep
+        self._link_check_ns = -1
+        self._plant_seen: float | None = None
         if not self.lockstep and self.hot.on:
             # on the hot thread: its wait times out at the deadline, so a silent input is
             # caught on time without waking the executor at 400 Hz (~6 % of a core)
@@ -123,6 +133,7 @@ class ControllerNode(Node, Stoppable):
                                f"{topics.force_topic(cid)}, "
                                f"{'enabled' if enabled else 'disabled'}")
         self.hot.start()
+        self._report()  # at once: mode_switch learns of a restart before the loop starts
 
     # -- the loop ----------------------------------------------------------------------------
 
@@ -140,19 +151,25 @@ class ControllerNode(Node, Stoppable):
             return
         if not self._gate.ready([self.pub], self.observed):
             return
-        if not self.lockstep and self.last_ns >= 0:
+        if not self.lockstep and self.last_ns >= 0 and self._linked:
             # real time drops samples under load (keep-last 1): the fade follows the stamps,
-            # so a switch or a trip fades in control.fade_time_s of plant time, not messages
-            for _ in range(min(round((ns - self.last_ns) * self.rate / 1e9) - 1, 100_000)):
+            # so a switch or a trip fades in control.fade_time_s of plant time, not messages;
+            # a fade-in skips at most an input timeout: a longer gap (a stall, or the old first
+            # sample a just started node may take) must not become a step of the gain
+            gap = min(round((ns - self.last_ns) * self.rate / 1e9) - 1, 100_000)
+            if self.loop.enabled:
+                gap = min(gap, round(self.input_timeout_s * self.rate))
+            for _ in range(gap):
                 self.loop.fader.step()
         self.last_ns = ns
         self._t_in = time.monotonic()
         if self.stale:
             self.stale = False
             self.get_logger().info(f"{self.cid}: input is back")
-        if self.samples == 0 and not self.lockstep:
+        if not self._linked and self._reaches_actuators(ns):
+            self._linked = True
             self.loop.prime(x)  # joining a running plant: no filter start-up transient
-        w = self.loop.step(x)
+        w = self.loop.step(x) if self._linked else self._zero
         if not np.isfinite(w).all():  # defensive: a NaN must never reach an actuator
             self.nonfinite_out += 1
             w = self._zero
@@ -168,6 +185,23 @@ class ControllerNode(Node, Stoppable):
                 self.get_logger().warning(f"{self.cid}: actuator saturation (total {seen[1]} "
                                           f"samples)", throttle_duration_sec=2.0)
             self._seen = seen
+
+    def _reaches_actuators(self, ns: int) -> bool:
+        """Real time: True once the ``force_reader`` node's reader and every other reader of
+        the force topic this node sees matched the publisher (checked every 10 ms of stamps;
+        an incompatible reader holds it MATCH_TIMEOUT_S at most). Before that the fade would
+        run unheard: a restarted controller's discovery can take a second, and it rejoined at
+        full gain."""
+        if ns - self._link_check_ns < 10_000_000 or self.pub.get_subscription_count() == 0:
+            return False
+        self._link_check_ns = ns
+        infos = self.get_subscriptions_info_by_topic(self.pub.topic_name)
+        if self.force_reader and not any(i.node_name == self.force_reader for i in infos):
+            return False
+        if self._plant_seen is None:
+            self._plant_seen = time.monotonic()
+        return (self.pub.get_subscription_count() >= len(infos)
+                or time.monotonic() - self._plant_seen > MATCH_TIMEOUT_S)
 
     def _watchdog(self) -> None:
         with self._lock:
@@ -245,7 +279,7 @@ class ControllerNode(Node, Stoppable):
             "rejected_inputs": self.guard.rejected,
             "stale_at_mono_ns": self.stale_at_mono_ns,
             "params_changed_at_ns": self.changed_at_ns,
-            "stale_events": self.stale_events})]
+            "stale_events": self.stale_events, "boot_ns": self.boot_ns})]
         self.pub_diag.publish(arr)
 
     def close(self) -> None:

@@ -10,8 +10,9 @@ Trip: the band-limited RMS of each stage velocity (:class:`~.trip.TripMonitor`) 
 ``control.trip_rms_mps`` disables every controller, latches Passive, logs why and reports it on
 ``/dcsms/diagnostics``; only ``/dcsms/reset_trip`` clears the latch (the mode stays Passive).
 
-A controller whose enable service appears (start-up or restart) is told the current mode's
-state, so a restarted controller fades back in instead of kicking. ``/dcsms/config``
+A controller whose enable service appears (start-up), or whose ``boot_ns`` in
+``/dcsms/diagnostics`` changes (a killed process restarted before its old service expired), is
+told the current mode's state, so it comes back in the current mode, fading in. ``/dcsms/config``
 (std_msgs/String, transient local) carries the validated flat parameters as a ROS 2 params
 YAML file, so a bag records the configuration it was made with.
 """
@@ -89,6 +90,11 @@ class ModeSwitchNode(Node):
                                                callback_group=services)
                          for c in self.controllers}
         self._ready = dict.fromkeys(self.controllers, False)
+        # a controller killed and restarted keeps its enable service "ready" (DDS liveliness
+        # lease): its new boot id in /dcsms/diagnostics is what tells us it came back
+        self._boots: dict[str, str] = {}
+        self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics,
+                                 qos.status(), callback_group=services)
         for m in ALL_MODES:
             self.create_service(Trigger, topics.set_mode_service(m.value),
                                 lambda req, resp, m=m: self._on_set_mode(m, resp),
@@ -223,12 +229,30 @@ class ModeSwitchNode(Node):
         for c, client in self.clients_.items():
             ready = client.service_is_ready()
             if ready and not self._ready[c]:
-                fut = client.call_async(SetBool.Request(data=c in want))
-                fut.add_done_callback(lambda f, c=c: self.get_logger().info(
-                    f"{c} joined: {f.result().message if f.result() else 'no reply'}"))
+                self._tell(c, c in want, "joined")
             elif not ready and self._ready[c]:
                 self.get_logger().warning(f"{c} left the graph (enable service gone)")
             self._ready[c] = ready
+
+    def _tell(self, c: str, state: bool, why: str) -> None:
+        fut = self.clients_[c].call_async(SetBool.Request(data=state))
+        fut.add_done_callback(lambda f: self.get_logger().info(
+            f"{c} {why}: {f.result().message if f.result() else 'no reply'}"))
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for st in msg.status:
+            if st.name not in self.clients_:
+                continue
+            boot = next((kv.value for kv in st.values if kv.key == "boot_ns"), None)
+            if boot is None or self._boots.get(st.name) == boot:
+                continue
+            if self._switch_lock.locked():
+                return  # a switch tells everyone anyway; the next report is judged again
+            known = st.name in self._boots
+            self._boots[st.name] = boot
+            if known:  # a new process under the same name: give it the current mode's state
+                self._tell(st.name, st.name in enabled_controllers(self.mode, self.num_stages),
+                           "restarted")
 
     # -- trip --------------------------------------------------------------------------------
     def _on_velocity(self, i: int, buf: bytes) -> None:

@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from node_helpers import overrides
 from rclpy.executors import MultiThreadedExecutor
@@ -16,7 +17,7 @@ from dcsms_ros.core import topics
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
 from dcsms_ros.nodes.mode_switch import ModeSwitchNode
-from dcsms_ros.nodes.msgs import twist_msg
+from dcsms_ros.nodes.msgs import status, twist_msg
 
 
 class Graph:
@@ -106,5 +107,29 @@ def test_instability_trip_latches_passive_until_reset(ctx, cfg):
         assert r.success and "trip cleared" in r.message
         r = g.call(topics.set_mode_service("fbc"))
         assert r.success and g.fb[0].loop.enabled
+    finally:
+        g.close()
+
+
+def test_restarted_controller_is_given_the_current_mode(ctx, cfg):
+    """A new boot id in a controller's report (a killed process restarted while its old enable
+    service still looks alive) makes mode_switch send it the current mode's state."""
+    g = Graph(ctx, cfg)
+    try:
+        assert g.call(topics.set_mode_service("dfbc")).success
+        assert g.wait(lambda: "fb_stage1" in g.ms._boots and g.ms._ready["fb_stage1"])
+        time.sleep(0.6)  # the reconcile that saw the services appear has told them already
+        # the restarted process came up disabled (its command line said Passive), and the
+        # service never looked gone, so the 0.5 s reconcile has nothing to notice
+        g.fb[0].loop.enable(False)
+        time.sleep(1.2)
+        assert not g.fb[0].loop.enabled
+        pub = g.client.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        report = DiagnosticArray(status=[status("fb_stage1", DiagnosticStatus.OK, "disabled",
+                                                {"boot_ns": 1})])
+        assert g.wait(lambda: pub.get_subscription_count() > 0)
+        pub.publish(report)
+        assert g.wait(lambda: g.fb[0].loop.enabled, timeout=5.0), "restart not noticed"
+        assert g.ms.mode.label == "DFBC" and g.fb[1].loop.enabled
     finally:
         g.close()
