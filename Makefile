@@ -28,10 +28,11 @@ export MPLBACKEND := Agg
 # numba's compiled-function cache (the batch engine fast path) lives in the venv, not the tree.
 export NUMBA_CACHE_DIR ?= $(CURDIR)/$(VENV)/numba-cache
 
-.PHONY: help venv test lint typecheck pytest demo bench colcon-check clean distclean
+.PHONY: help venv test lint typecheck pytest demo model-demo bench colcon-check clean distclean
 
 help:
-	@echo "make demo          analytic model report (eig, DFBC+FFC transmissibility, c1 sweep)"
+	@echo "make demo          graph in lockstep, six modes recorded and analysed -> out/demo/report.md"
+	@echo "make model-demo    analytic model only (eig, DFBC+FFC transmissibility, c1 sweep)"
 	@echo "make test          ruff + mypy + pytest (creates .venv on first use)"
 	@echo "make bench         performance benchmark (bench/run.py)"
 	@echo "make colcon-check  real colcon build into a temp dir; checks the ros2 run layout"
@@ -71,10 +72,16 @@ pytest: $(STAMP)
 	$(PY) -m pytest --durations=10 $(PYTEST_ARGS) || { rc=$$?; \
 	  [ $$rc -eq 5 ] && echo "pytest collected no tests" >&2; exit $$rc; }
 
+# The main job end to end: lockstep graph + recording, the six modes, analysis, Table 4.
+DEMO_ARGS ?=
 demo: $(STAMP)
+	$(DCSMS) demo --out $(DEMO_OUT) $(DEMO_ARGS)
+
+MODEL_OUT ?= out/model
+model-demo: $(STAMP)
 	$(DCSMS) model eig
-	$(DCSMS) model tf --mode DFBC+FFC --plot $(DEMO_OUT)
-	$(DCSMS) model sweep --param c1 --factors 1:101:2 --plot $(DEMO_OUT)
+	$(DCSMS) model tf --mode DFBC+FFC --plot $(MODEL_OUT)
+	$(DCSMS) model sweep --param c1 --factors 1:101:2 --plot $(MODEL_OUT)
 
 BENCH_ARGS ?=
 bench: $(STAMP)

@@ -20,6 +20,12 @@ TABLE1 = Path(__file__).resolve().parents[1] / "config" / "table1.yaml"
 _DOMAINS = iter(random.Random(os.getpid()).sample(range(1, 230), 229))
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    """``--soak``: run the reliability soak for its full duration (10 minutes)."""
+    parser.addoption("--soak", action="store_true", default=False,
+                     help="run test/reliability/test_soak.py for 10 minutes (default: 25 s)")
+
+
 def unique_domain() -> int:
     """The next unused ROS domain id of this test run."""
     return next(_DOMAINS)

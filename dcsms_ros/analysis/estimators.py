@@ -4,6 +4,11 @@ All spectra are one-sided Welch estimates with a Hann window and 50 % overlap. `
 a power of two giving a 0.1-0.25 Hz resolution (8192 or 16384 points at 2 kHz), reduced for
 short records so that at least ~8 averages remain: with fewer, the coherence is biased towards
 1 and the H1 variance is large.
+
+The Welch sums are accumulated :data:`BLOCK_SEGMENTS` segments at a time from strided views of
+the input (float32 or float64), so an hour-long record at 2 kHz costs a few MB of work arrays
+instead of float64 copies and an FFT matrix of the whole record (scipy's ``welch``/``csd``
+build both); the result equals scipy's to rounding (``test_welch_estimators.py``).
 """
 
 from __future__ import annotations
@@ -11,11 +16,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy import signal
 
 #: Target resolution range (Hz) for :func:`choose_nperseg`.
 RESOLUTION_HZ = (0.1, 0.25)
 MIN_AVERAGES = 8
+#: Welch segments transformed per block: bounds the work arrays (64 x 16384 x 16 B = 16 MB).
+BLOCK_SEGMENTS = 64
 
 
 @dataclass
@@ -81,6 +89,60 @@ def _averages(n: int, nperseg: int) -> int:
     return max((n - nperseg) // (nperseg // 2) + 1, 0)
 
 
+def welch_sums(x: np.ndarray, y: np.ndarray | None, fs: float, nperseg: int,
+               block: int = BLOCK_SEGMENTS) -> tuple[np.ndarray, list[np.ndarray], int]:
+    """One-sided Welch (cross) spectral densities, as scipy's ``welch``/``csd`` with a Hann
+    window, 50 % overlap, constant detrend and mean averaging, in bounded memory.
+
+    Parameters
+    ----------
+    x, y : ndarray, shape (N,)
+        Records on one uniform time base (float32 or float64; unit u_x, u_y); ``y`` may be None.
+    fs : float
+        Sample rate (Hz).
+    nperseg : int
+        Segment length (samples), <= N.
+    block : int
+        Segments transformed at a time.
+
+    Returns
+    -------
+    f : ndarray, shape (nperseg // 2 + 1,)
+        Frequencies (Hz).
+    spectra : list of ndarray
+        ``[S_xx]`` (u_x^2/Hz), or ``[S_xx, S_yy, S_xy]`` with ``S_xy = conj(X) Y`` (complex).
+    averages : int
+        Segments averaged.
+    """
+    step = nperseg - nperseg // 2
+    win = signal.get_window("hann", nperseg)
+    views = [sliding_window_view(np.asarray(r), nperseg)[::step]
+             for r in ((x,) if y is None else (x, y))]
+    nseg = views[0].shape[0]
+    nf = nperseg // 2 + 1
+    auto = [np.zeros(nf) for _ in views]
+    cross = np.zeros(nf, dtype=complex)
+    for b in range(0, nseg, block):
+        ffts = []
+        for v, acc in zip(views, auto):
+            seg = v[b:b + block].astype(np.float64)
+            seg -= seg.mean(axis=1, keepdims=True)
+            z = np.fft.rfft(seg * win, axis=1)
+            acc += np.sum(z.real ** 2 + z.imag ** 2, axis=0)
+            ffts.append(z)
+        if len(ffts) == 2:
+            cross += np.sum(np.conj(ffts[0]) * ffts[1], axis=0)
+    # density scaling; every bin but DC (and Nyquist for even nperseg) doubled: one-sided
+    scale = np.full(nf, 2.0 / (fs * float(np.sum(win ** 2)) * max(nseg, 1)))
+    scale[0] /= 2.0
+    if nperseg % 2 == 0:
+        scale[-1] /= 2.0
+    spectra = [a * scale for a in auto]
+    if y is not None:
+        spectra.append(cross * scale)
+    return np.fft.rfftfreq(nperseg, 1.0 / fs), spectra, nseg
+
+
 def transfer_h1(x: np.ndarray, y: np.ndarray, fs: float,
                 nperseg: int | None = None) -> TransferEstimate:
     """Welch H1 estimate of the transfer function from ``x`` to ``y`` and their coherence.
@@ -94,26 +156,18 @@ def transfer_h1(x: np.ndarray, y: np.ndarray, fs: float,
     nperseg : int, optional
         Segment length; default :func:`choose_nperseg`.
     """
-    x = np.asarray(x, dtype=np.float64)
-    y = np.asarray(y, dtype=np.float64)
-    nper = nperseg or choose_nperseg(fs, x.size)
-    kw = {"fs": fs, "window": "hann", "nperseg": nper, "noverlap": nper // 2,
-          "detrend": "constant"}
-    f, sxx = signal.welch(x, **kw)  # type: ignore[arg-type]
-    _, syy = signal.welch(y, **kw)  # type: ignore[arg-type]
-    _, sxy = signal.csd(x, y, **kw)  # type: ignore[arg-type]  # conj(X) * Y
+    nper = nperseg or choose_nperseg(fs, np.shape(x)[0])
+    f, (sxx, syy, sxy), _ = welch_sums(x, y, fs, nper)
     with np.errstate(divide="ignore", invalid="ignore"):
         h = np.where(sxx > 0, sxy / sxx, 0.0)
         coh = np.where(sxx * syy > 0, np.abs(sxy) ** 2 / (sxx * syy), 0.0)
-    return TransferEstimate(f, h, np.clip(coh.real, 0.0, 1.0), _averages(x.size, nper))
+    return TransferEstimate(f, h, np.clip(coh.real, 0.0, 1.0), _averages(np.shape(x)[0], nper))
 
 
 def psd(x: np.ndarray, fs: float, nperseg: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One-sided PSD (unit^2/Hz) of ``x`` (N,): returns ``(f (F,), psd (F,))``."""
-    x = np.asarray(x, dtype=np.float64)
-    nper = nperseg or choose_nperseg(fs, x.size)
-    f, p = signal.welch(x, fs=fs, window="hann", nperseg=nper, noverlap=nper // 2,
-                        detrend="constant")
+    nper = nperseg or choose_nperseg(fs, np.shape(x)[0])
+    f, (p,), _ = welch_sums(x, None, fs, nper)
     return f, p
 
 
@@ -224,5 +278,5 @@ def band_rms_around(f: np.ndarray, p: np.ndarray, centre_hz: float,
 __all__ = [
     "MIN_AVERAGES", "NOMINAL_CENTRES", "Peak", "TransferEstimate", "asd", "band_rms",
     "band_rms_around", "choose_nperseg", "find_resonances", "psd", "third_octave_bands",
-    "transfer_h1",
+    "transfer_h1", "welch_sums",
 ]

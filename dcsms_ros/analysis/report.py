@@ -170,7 +170,7 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
     for a in axes:
         j = AXIS_NAMES.index(a)
         f, p_top = est.psd(al.bodies[top][:, j], al.fs, nper)
-        ax: dict[str, Any] = {"rms_mps": float(np.std(al.bodies[top][:, j]))}
+        ax: dict[str, Any] = {"rms_mps": float(np.std(al.bodies[top][:, j], dtype=np.float64))}
         tfs = []
         if "ground" in al.bodies:
             tfs = [est.transfer_h1(al.bodies["ground"][:, j], al.bodies[s][:, j], al.fs, nper)
@@ -244,13 +244,13 @@ def _forces(data: BagData, seg: Segment, cfg: SystemConfig | None) -> list[dict[
     if data.applied is None or data.applied.values.size == 0:
         return []
     s = data.applied
-    sel = (s.stamp_ns >= seg.t0_ns) & (s.stamp_ns < seg.t1_ns)
-    vals = s.values[sel].astype(np.float64)
+    i0, i1 = np.searchsorted(s.stamp_ns, [seg.t0_ns, seg.t1_ns])  # stamps are sorted
+    vals = s.values[i0:i1]  # a view: one channel at a time is widened to float64
     out = []
     for c in range(vals.shape[1]):
         name = s.columns[c] if c < len(s.columns) else f"ch{c}"
         limit = _force_limit(cfg, name, c, vals.shape[1])
-        x = vals[:, c]
+        x = vals[:, c].astype(np.float64)
         out.append({
             "channel": name, "rms_n": float(np.sqrt(np.mean(x ** 2))) if x.size else None,
             "peak_n": float(np.max(np.abs(x))) if x.size else None, "limit_n": limit,

@@ -51,7 +51,7 @@ class Aligned:
     Attributes
     ----------
     stamp_ns : ndarray of int64, shape (K,)
-    bodies : dict of str to ndarray of float64, shape (K, 3)
+    bodies : dict of str to ndarray of float32, shape (K, 3)
         Velocity x, y, z (m/s) of each body.
     fs : float
         Sample rate (Hz) from the median stamp step.
@@ -108,16 +108,25 @@ def split_segments(modes: list[ModeEvent], t_first_ns: int, t_last_ns: int,
 
 def align(data: BagData, seg: Segment) -> Aligned:
     """Samples of every body in ``seg`` that share one stamp (drops in one topic are removed
-    from all, so cross-spectra compare the same instants)."""
-    common: np.ndarray | None = None
-    for s in data.bodies.values():
-        st = s.stamp_ns[(s.stamp_ns >= seg.t0_ns) & (s.stamp_ns < seg.t1_ns)]
-        common = st if common is None else np.intersect1d(common, st, assume_unique=True)
-    assert common is not None
-    bodies = {}
+    from all, so cross-spectra compare the same instants).
+
+    The values stay float32 and, when every body holds the same stamps (no drops: the usual
+    case), are views into the bag's arrays: an hour-long segment costs no copy.
+    """
+    windows = {}
     for name, s in data.bodies.items():
-        idx = np.searchsorted(s.stamp_ns, common)
-        bodies[name] = s.values[idx].astype(np.float64)
+        i0, i1 = np.searchsorted(s.stamp_ns, [seg.t0_ns, seg.t1_ns])
+        windows[name] = (s, int(i0), int(i1))
+    stamps = [s.stamp_ns[i0:i1] for s, i0, i1 in windows.values()]
+    if all(st.size == stamps[0].size and np.array_equal(st, stamps[0]) for st in stamps[1:]):
+        common = stamps[0]
+        bodies = {name: s.values[i0:i1] for name, (s, i0, i1) in windows.items()}
+    else:
+        common = stamps[0]
+        for st in stamps[1:]:
+            common = np.intersect1d(common, st, assume_unique=True)
+        bodies = {name: s.values[np.searchsorted(s.stamp_ns, common)]
+                  for name, (s, _, _) in windows.items()}
     if common.size < 2:
         return Aligned(common, bodies, 0.0, 0)
     dt = float(np.median(np.diff(common)))

@@ -50,3 +50,21 @@ def test_config_yaml_round_trip() -> None:
     """config_to_yaml -> config_from_yaml gives the same flat parameters (6dof too)."""
     cfg = load_config()
     assert config_from_yaml(config_to_yaml(cfg)).params == cfg.params
+
+
+def test_align_drops_samples_missing_in_one_topic(tmp_path: Path) -> None:
+    """A sample dropped by one topic is removed from every body; the others stay aligned."""
+    bag = write_bag(tmp_path / "bag", fs=200.0, seconds=6.0, modes=(("Passive", 0.0, 0.0),))
+    data = read_bag(bag)
+    seg = split_segments(data.modes, int(data.bodies["ground"].stamp_ns[0]),
+                         int(data.bodies["ground"].stamp_ns[-1]))[0]
+    full = align(data, seg)
+    s1 = data.bodies["stage1"]
+    keep = np.ones(s1.stamp_ns.size, bool)
+    keep[[300, 301, 700]] = False
+    s1.stamp_ns, s1.values = s1.stamp_ns[keep], s1.values[keep]
+    al = align(data, seg)
+    assert al.stamp_ns.size == full.stamp_ns.size - 3 and al.missing == 3
+    gone = np.isin(full.stamp_ns, al.stamp_ns)
+    for body in ("ground", "stage1", "stage2"):
+        np.testing.assert_array_equal(al.bodies[body], full.bodies[body][gone])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy import signal
 
 from dcsms_ros.analysis import estimators as est
@@ -60,3 +61,24 @@ def test_asd_level_of_white_noise() -> None:
     rng = np.random.default_rng(2)
     f, a = est.asd(rng.standard_normal(int(100 * FS)), FS)
     assert abs(np.median(a[(f > 5) & (f < 200)]) / np.sqrt(2 / FS) - 1) < 0.05
+
+
+@pytest.mark.parametrize(("n", "nperseg", "block"), [
+    (100_000, 8192, 64), (20_000, 1024, 7), (5_000, 1000, 3), (4_096, 4_096, 64),
+    (70_001, 4097, 5)])
+def test_blockwise_welch_equals_scipy(n: int, nperseg: int, block: int) -> None:
+    """The bounded-memory Welch sums equal scipy's welch/csd (float32 input, any block size)."""
+    rng = np.random.default_rng(n)
+    x = rng.standard_normal(n).astype(np.float32)
+    y = (np.convolve(x, [1.0, 0.5, 0.2], "same")
+         + 0.1 * rng.standard_normal(n)).astype(np.float32)
+    kw = {"fs": FS, "window": "hann", "nperseg": nperseg, "noverlap": nperseg // 2,
+          "detrend": "constant"}
+    f_ref, sxx = signal.welch(x.astype(np.float64), **kw)
+    _, syy = signal.welch(y.astype(np.float64), **kw)
+    _, sxy = signal.csd(x.astype(np.float64), y.astype(np.float64), **kw)
+    f, spectra, averages = est.welch_sums(x, y, FS, nperseg, block=block)
+    np.testing.assert_allclose(f, f_ref)
+    for got, want in zip(spectra, (sxx, syy, sxy)):
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.max(np.abs(want)))
+    assert averages == (n - nperseg) // (nperseg - nperseg // 2) + 1
