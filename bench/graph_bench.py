@@ -62,7 +62,8 @@ def _env(**kv: str):
 
 
 def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool = True,
-              timeout_s: float = 600.0, on_running: Any = None) -> dict[str, Any]:
+              timeout_s: float = 600.0, on_running: Any = None,
+              rt_priority: int = 0) -> dict[str, Any]:
     """Start the six node processes, step ``seconds`` of simulated time, return the timings.
 
     ``on_running(kids)`` (e.g. a profiler attaching to ``kid.proc.pid``) is called once the
@@ -82,6 +83,8 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     params.write_text(yaml.safe_dump(doc, sort_keys=False))
     kids = up.graph_children(cfg.plant.num_stages, params)
     plant = next(k for k in kids if k.name == "plant_simulator")
+    if rt_priority:
+        up.set_rt_priority(kids, rt_priority)
     with _env(ROS_DOMAIN_ID=str(domain), DCSMS_HOT_PATH="1" if hot else "0"):
         up.start(kids, run_dir, verbose=False)
     try:

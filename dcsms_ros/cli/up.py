@@ -42,6 +42,21 @@ class Child:
     log: Path | None = None
     proc: subprocess.Popen | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    env: dict[str, str] = field(default_factory=dict)
+
+
+#: The per-sample control path: the processes ``--rt-priority`` puts under SCHED_FIFO.
+CONTROL_PATH = ("plant_simulator", "sensor_decoupling", "fb_", "ff_")
+
+
+def set_rt_priority(kids: list[Child], priority: int) -> None:
+    """``--rt-priority``: SCHED_FIFO at ``priority`` (1-99) for the control-path processes;
+    mode_switch, the recorder and observers keep the default scheduler."""
+    from dcsms_ros.nodes.runtime import RT_PRIORITY_ENV
+
+    for kid in kids:
+        if kid.name.startswith(CONTROL_PATH):
+            kid.env[RT_PRIORITY_ENV] = str(priority)
 
 
 def stream_topics(n: int) -> list[str]:
@@ -113,7 +128,7 @@ def start(kids: list[Child], log_dir: Path, verbose: bool) -> None:
             kid.log = log_dir / f"{kid.name}.log"
             out = kid.log.open("wb")
         kid.proc = subprocess.Popen(kid.argv, stdout=out, stderr=subprocess.STDOUT if out else
-                                    None, stdin=subprocess.DEVNULL, env=env,
+                                    None, stdin=subprocess.DEVNULL, env={**env, **kid.env},
                                     start_new_session=True)
         if out is not None:
             out.close()
@@ -172,6 +187,9 @@ def register(subparsers: Any) -> None:
                    help="give up if the graph is not connected after S seconds (default 30)")
     p.add_argument("--log-dir", type=Path, default=None, metavar="DIR",
                    help="where the node logs go (default: a new directory under /tmp)")
+    p.add_argument("--rt-priority", type=int, default=0, metavar="N",
+                   help="run the control path (plant, decoupling, controllers) under SCHED_FIFO "
+                   "priority N (1-99; needs root or CAP_SYS_NICE; 0: default scheduler)")
     p.add_argument("--verbose", action="store_true", help="show the nodes' output here")
     p.set_defaults(func=run)
 
@@ -182,6 +200,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_cfg(args)
     if args.duration is not None and not args.duration > 0:
         raise DcsmsError(f"--duration {args.duration}: must be > 0")
+    if not 0 <= args.rt_priority <= 99:
+        raise DcsmsError(f"--rt-priority {args.rt_priority}: must be 0 (off) or 1..99")
     if args.record is not None and args.record.exists():
         raise DcsmsError(f"--record {args.record}: exists already, not overwriting")
     if args.ground_from:  # fail here with one line, not later inside the plant process
@@ -208,6 +228,8 @@ def run(args: argparse.Namespace) -> int:
         cfg, args.schedule, mode, args.duration or 0.0, observers, args.ground_from),
         sort_keys=False))
     graph = graph_children(n, params_file)
+    if args.rt_priority:
+        set_rt_priority(graph, args.rt_priority)
     stop_flag = {"signal": 0}
 
     def on_signal(signum: int, frame: Any) -> None:

@@ -41,6 +41,32 @@ EXIT_CONFIG = 2
 POLL_S = 0.1
 
 
+#: Environment variable: SCHED_FIFO priority (1-99) for every thread of a node process; unset
+#: or 0 keeps the default scheduler. ``dcsms up --rt-priority N`` sets it for the control path.
+RT_PRIORITY_ENV = "DCSMS_RT_PRIORITY"
+
+
+def apply_rt_priority() -> str | None:
+    """Put this process under ``SCHED_FIFO`` at ``$DCSMS_RT_PRIORITY`` before rclpy starts, so
+    that the DDS reception threads, the executor and the hot thread all inherit it (as
+    ros2_control's controller_manager runs its update loop). Returns a warning when it cannot
+    (no CAP_SYS_NICE / rtprio limit, or a bad value), None otherwise; never raises."""
+    text = os.environ.get(RT_PRIORITY_ENV, "").strip()
+    if not text or text == "0":
+        return None
+    try:
+        prio = int(text)
+        if not 1 <= prio <= 99:
+            raise ValueError
+    except ValueError:
+        return f"{RT_PRIORITY_ENV}={text!r}: not an integer in 1..99; default scheduler kept"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
+    except (OSError, AttributeError) as exc:
+        return f"SCHED_FIFO priority {prio} refused ({exc}); default scheduler kept"
+    return None
+
+
 def localhost_only() -> None:
     """Keep discovery on this machine unless the user chose otherwise."""
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -116,6 +142,7 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
         0 after a signal or a normal finish, 2 after a configuration error.
     """
     localhost_only()
+    rt_warning = apply_rt_priority()
     stopped = {"flag": False}
 
     def on_signal(signum: int, frame: Any) -> None:
@@ -130,6 +157,8 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
     status = 0
     try:
         node = factory(context=ctx)
+        if rt_warning:
+            node.get_logger().warning(rt_warning)
         executor: Executor = (MultiThreadedExecutor(num_threads=4, context=ctx) if multithreaded
                               else SingleThreadedExecutor(context=ctx))
         try:

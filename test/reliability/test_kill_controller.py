@@ -101,10 +101,10 @@ def test_killed_controller_is_zeroed_then_rejoins_without_kick(victim, ctx, cfg,
                    and (probe.status_after(victim, t_restart) or ("", {}))[1].get("gain")
                    == "1.000", 60.0, f"{victim} rejoined")
         k_end = int(probe.value("plant_simulator", "sample"))  # may predate the rejoin
-        if sharer is None:  # 0.6 s past its first applied force: covers 0.45-0.55 s
+        if sharer is None:  # 1 s past its first applied force: covers 0.45-1 s
             probe.wait(lambda: _first_force(probe, act, k_stale + 2000, rate) is not None,
                        30.0, f"a force of {victim} applied")
-            k_end = max(k_end, _first_force(probe, act, k_stale + 2000, rate) + int(0.6 * rate))
+            k_end = max(k_end, _first_force(probe, act, k_stale + 2000, rate) + int(1.0 * rate))
         probe.wait(lambda: probe.applied_reaches(k_end, rate), 30.0, "probe caught up")
         k_re, f_re = _series(probe, act, k_stale + 2000, k_end, rate)
         if sharer is None:
@@ -113,7 +113,15 @@ def test_killed_controller_is_zeroed_then_rejoins_without_kick(victim, ctx, cfg,
         # the force after it rejoined, against itself 0.45-0.55 s later (fade nearly done):
         # self-normalised, so a state the fault left excited does not count as a kick
         age = k_re - k_re[0]
-        head, late = f_re[age < 0.05 * rate], f_re[(age >= 0.45 * rate) & (age < 0.55 * rate)]
+        head = f_re[age < 0.05 * rate]
+        # the reference level once faded in, from applied (non-zero) samples: a scheduling
+        # stall of the shared box past the 10 ms input timeout zeroes the force for a while
+        # (the watchdog doing its job), which is no measure of the rejoin; widened to 1 s then
+        win = (age >= 0.45 * rate) & (age < 0.55 * rate)
+        stale_zeros = int(np.sum(win & (f_re == 0.0)))
+        late = f_re[win & (f_re != 0.0)]
+        if len(late) <= 20:
+            late = f_re[(age >= 0.45 * rate) & (age < 1.0 * rate) & (f_re != 0.0)]
         late_rms = float(np.sqrt(np.mean(late**2))) if len(late) else 0.0
         ramp = float(np.sqrt(np.mean(head**2))) / max(late_rms, 1e-12)
         early = age < 0.1 * rate
@@ -128,7 +136,8 @@ def test_killed_controller_is_zeroed_then_rejoins_without_kick(victim, ctx, cfg,
            f"zero force after {latency_s * 1e3:.1f} ms; '{degraded_msg}'; restart fades in",
            f"{latency_s * 1e3:.1f} ms to zero force (scheduling delay {load * 1e3:.1f} ms); "
            f"rejoin max step {rejoin_step:.3g} N "
-           f"(|F| {late_max:.3g} N at 0.5 s); first 50 ms at {ramp:.0%} of the RMS at 0.5 s",
+           f"(|F| {late_max:.3g} N at 0.5 s); first 50 ms at {ramp:.0%} of the RMS at 0.5 s"
+           + (f" ({stale_zeros} stale-zero samples at 0.45-0.55 s)" if stale_zeros else ""),
            latency_s=latency_s, rejoin_step_n=rejoin_step, steady_step_n=steady, max_force_n=full,
            ramp_ratio=ramp, sched_delay_s=load, plant_rate_hz=plant["achieved_rate_hz"],
            overruns=plant["overruns"])
@@ -139,8 +148,8 @@ def test_killed_controller_is_zeroed_then_rejoins_without_kick(victim, ctx, cfg,
     # no kick: the force ramps (fade-in over control.fade_time_s = 0.5 s: its first 50 ms carry
     # ~10 % of the RMS at 0.5 s; a full-gain restart ~100 %) and no step in its first 100 ms
     # reaches 30 % of the force it has at 0.5 s (a kick is a step of the whole force)
-    assert len(late) > 20, (f"{victim} rejoin: only {len(late)} applied-force samples "
-                            "0.45-0.55 s after it rejoined")
+    assert len(late) > 20, (f"{victim} rejoin: only {len(late)} non-zero applied-force "
+                            "samples 0.45-1 s after it rejoined")
     assert ramp <= 0.3 and rejoin_step <= 0.3 * late_max, (
         f"{victim} rejoin kicked: first 50 ms at {ramp:.3g} x the RMS at 0.5 s (bound 0.3), "
         f"max step {rejoin_step:.3g} N vs |F| {late_max:.3g} N at 0.5 s")

@@ -81,7 +81,10 @@ def test_soak_realtime_with_recording(request, ctx, cfg, tmp_path):
     applied_gaps = k - len(stamps[topics.ACTUATORS_APPLIED])
     growth = {n: (rss1[n] - rss0[n]) / rss0[n] for n in rss0}
     # the plant's own 1 Hz reports (steady clock), as recorded: each must show progress
-    steps = [b - a for a, b in itertools.pairwise(sim_times)][:-1]
+    # from the last report before stepping began (the plant reports sim time 0 while it waits
+    # for the recorder's readers); the last report may be the final one, taken at the stop
+    first = next((i for i, t in enumerate(sim_times) if t > 0.0), len(sim_times))
+    steps = [b - a for a, b in itertools.pairwise(sim_times[max(first - 1, 0):])][:-1]
     wall = progress[-1][0] - progress[0][0]
     sim_rate = (progress[-1][1] - progress[0][1]) / wall
     worst = max(growth, key=lambda n: growth[n])
