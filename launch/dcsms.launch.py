@@ -2,8 +2,9 @@
 dcsms.launch.py``): the same nodes, names and parameter file that ``dcsms up`` starts.
 
 Arguments: ``config`` (params file, default the packaged ``config/table1.yaml``), ``schedule``
-(``realtime`` | ``lockstep``), ``mode`` (initial mode, e.g. ``dfbc_ffc``) and ``duration_s``
-(simulated seconds, 0 = until stopped).
+(``realtime`` | ``lockstep``), ``mode`` (initial mode, e.g. ``dfbc_ffc``), ``duration_s``
+(simulated seconds, 0 = until stopped) and ``rt_priority`` (SCHED_FIFO priority 1-99 of the
+control path: plant, decoupling, controllers; 0 = default scheduler), as ``dcsms up``.
 """
 
 import os
@@ -37,25 +38,29 @@ def _nodes(context, *args, **kwargs):
     on = ENABLED[mode]
     common = {"schedule": schedule}
     sim = {"use_sim_time": True}
+    # read by dcsms_ros.nodes.runtime before rclpy starts (every thread inherits it)
+    rt = {"DCSMS_RT_PRIORITY": LaunchConfiguration("rt_priority").perform(context)}
     nodes = [
         Node(package=PACKAGE, executable="plant_simulator", name="plant_simulator",
              namespace=NAMESPACE, parameters=[config, common, {"duration_s": duration}],
-             output="screen"),
+             output="screen", additional_env=rt),
         Node(package=PACKAGE, executable="sensor_decoupling", name="sensor_decoupling",
-             namespace=NAMESPACE, parameters=[config, common, sim], output="screen"),
+             namespace=NAMESPACE, parameters=[config, common, sim], output="screen",
+             additional_env=rt),
         Node(package=PACKAGE, executable="mode_switch", name="mode_switch",
              namespace=NAMESPACE, parameters=[config, common, {"initial_mode": mode}],
              output="screen"),
         Node(package=PACKAGE, executable="feedforward_controller", name="ff_stage1",
              namespace=NAMESPACE,
-             parameters=[config, common, sim, {"enabled": "ff_stage1" in on}], output="screen"),
+             parameters=[config, common, sim, {"enabled": "ff_stage1" in on}], output="screen",
+             additional_env=rt),
     ]
     for i in range(1, NUM_STAGES + 1):
         cid = f"fb_stage{i}"
         nodes.append(Node(package=PACKAGE, executable="feedback_controller", name=cid,
                           namespace=NAMESPACE,
                           parameters=[config, common, sim, {"stage": i, "enabled": cid in on}],
-                          output="screen"))
+                          output="screen", additional_env=rt))
     return nodes
 
 
@@ -72,5 +77,8 @@ def generate_launch_description():
                               description="initial mode: passive fbc ffc fbc_ffc dfbc dfbc_ffc"),
         DeclareLaunchArgument("duration_s", default_value="0.0",
                               description="simulated seconds to run; 0 = until stopped"),
+        DeclareLaunchArgument("rt_priority", default_value="0",
+                              description="SCHED_FIFO priority 1-99 of the control path "
+                              "(needs CAP_SYS_NICE); 0 = default scheduler"),
         OpaqueFunction(function=_nodes),
     ])

@@ -47,6 +47,9 @@ def register(subparsers: Any) -> None:
                    help="simulated seconds dropped after each switch (default 1, >= fade)")
     p.add_argument("--engine", choices=("graph", "batch"), default="graph",
                    help="graph: ROS nodes in lockstep (default); batch: core engine, no ROS")
+    p.add_argument("--rt-priority", type=int, default=0, metavar="N",
+                   help="graph engine: SCHED_FIFO priority of the control path, as `dcsms up "
+                   "--rt-priority` (0: default scheduler)")
     p.add_argument("--modes", default=",".join(m.label for m in ALL_MODES), metavar="LIST",
                    help="comma-separated modes, first is the reference's run order")
     p.set_defaults(func=run)
@@ -59,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
         raise DcsmsError("--modes: no mode given")
     if not (args.segment > 0 and args.settle >= 0):
         raise DcsmsError("--segment must be > 0 and --settle >= 0")
+    if not 0 <= args.rt_priority <= 99:
+        raise DcsmsError(f"--rt-priority {args.rt_priority}: must be 0 (off) or 1..99")
     cfg = load_cfg(args)
     out = _prepare(args.out)
     bag = out / "bag"
@@ -118,7 +123,7 @@ def _graph(args: argparse.Namespace, cfg: Any, modes: list[Mode], span: float, t
     cmd = [sys.executable, "-m", "dcsms_ros.cli", "up", "--lockstep", "--mode", modes[0].label,
            "--duration", f"{total + 0.05:g}", "--record", str(bag),
            "--record-topics", *analysis_topics(cfg.plant.num_stages),
-           "--log-dir", str(out / "logs")]
+           "--log-dir", str(out / "logs"), "--rt-priority", str(args.rt_priority)]
     if args.config is not None:
         cmd += ["--config", str(args.config)]
     for s in args.overrides:

@@ -76,7 +76,7 @@ class ModeSwitchNode(Node):
         self.num_stages = n
         self.tripped = False
         self.trip_reason = ""
-        self.trip_at = (0, 0, 0)
+        self.trip_at = (0, 0)
         self._newest_ns = 0
         self.last_result = "start"
         self._switch_lock = threading.Lock()
@@ -280,8 +280,8 @@ class ModeSwitchNode(Node):
     def _trip(self, reason: str) -> None:
         self.tripped = True
         self.trip_reason = reason
-        # when: wall (CLOCK_MONOTONIC), the newest velocity sample judged, and /clock (sim time)
-        self.trip_at = (time.monotonic_ns(), self._newest_ns, self.get_clock().now().nanoseconds)
+        # when: wall (CLOCK_MONOTONIC) and the stamp of the newest velocity sample judged
+        self.trip_at = (time.monotonic_ns(), self._newest_ns)
         self.get_logger().error(f"instability trip: {reason}; latching Passive until "
                                 f"{topics.RESET_TRIP}")
         with self._switch_lock:
@@ -319,8 +319,7 @@ class ModeSwitchNode(Node):
                f"degraded: {', '.join(missing)} absent" if missing else self.mode.label)
         values = {"mode": self.mode.label, "tripped": self.tripped,
                   "trip_reason": self.trip_reason, "last_switch": self.last_result,
-                  "trip_mono_ns": self.trip_at[0], "trip_sample_ns": self.trip_at[1],
-                  "trip_clock_ns": self.trip_at[2]}
+                  "trip_mono_ns": self.trip_at[0], "trip_sample_ns": self.trip_at[1]}
         values.update({f"rms_stage{i + 1}_mps": " ".join(f"{x:.3g}" for x in m.rms)
                        for i, m in enumerate(self._monitors)})
         values.update({c: "present" if r else "absent" for c, r in self._ready.items()})

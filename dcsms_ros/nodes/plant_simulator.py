@@ -171,7 +171,7 @@ class PlantSimulatorNode(Node, Stoppable):
         # it with the time they killed the controller (the same clock in every process)
         self.stale_at: dict[str, tuple[int, int]] = dict.fromkeys(self.controllers, (0, 0))
         self.overruns = 0
-        self._t0 = 0.0
+        self._t0 = self._t_run = 0.0
         # bookkeeping
         self.started = False
         self._t_start = time.monotonic()
@@ -231,7 +231,8 @@ class PlantSimulatorNode(Node, Stoppable):
         elif now - self._ready_at < SETTLE_S:
             return
         self.started = True
-        self._t0 = now
+        self._t0 = now  # real time: moved on when a backlog is dropped
+        self._t_run = now  # not moved: the wall time of the whole run
         self._cpu[0] = time.process_time()
         self._rate_mark = (self.sim.k, now)
         if self._drained:
@@ -403,11 +404,12 @@ class PlantSimulatorNode(Node, Stoppable):
 
     def _done(self) -> None:
         self._flush_applied()
-        wall = time.monotonic() - self._t0
+        wall = time.monotonic() - self._t_run
         self._cpu[1] = time.process_time()
+        dropped = f", {self.overruns} dropped as overruns" if self.overruns else ""
         self.get_logger().info(f"finished {self.sim.k} samples ({self.sim.t:.3f} s simulated) "
                                f"in {wall:.2f} s wall: {self.sim.k / max(wall, 1e-9):.0f} "
-                               f"samples/s")
+                               f"samples/s{dropped}")
         self.finish()
         self._report()  # says finished=True: `dcsms up` tells a finished run from a crash
 

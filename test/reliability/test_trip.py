@@ -54,11 +54,9 @@ def test_unstable_gain_trips_to_passive_and_latches(ctx, cfg, tmp_path):
         probe.wait(lambda: int(probe.value("fb_stage2", "params_changed_at_ns")) > 0, 5.0,
                    "fb_stage2 reports its change")
         ms = probe.diag["mode_switch"]
-        # plant time from the first sample with the new gain to the sample that tripped, and
-        # how far behind /clock the monitor was when it tripped (its backlog)
+        # plant time from the first sample with the new gain to the sample that tripped
         sim_s = (int(ms["trip_sample_ns"]) - int(probe.value("fb_stage2",
                                                              "params_changed_at_ns"))) / 1e9
-        backlog_s = (int(ms["trip_clock_ns"]) - int(ms["trip_sample_ns"])) / 1e9
         wall_s = (int(ms["trip_mono_ns"]) - t_set) / 1e9
         latency = (t_mode - t_set) / 1e9
         reason = probe.diag_msgs["mode_switch"]
@@ -86,8 +84,8 @@ def test_unstable_gain_trips_to_passive_and_latches(ctx, cfg, tmp_path):
     report("6", f"fb_stage2 gain x{FACTOR:g} via set_parameters (real time, DFBC)",
            f"latched Passive: '{reason}'; held until /dcsms/reset_trip",
            f"{sim_s * 1e3:.0f} ms plant time to trip; {latency * 1e3:.0f} ms wall to Passive on "
-           f"/dcsms/mode (monitor backlog {backlog_s * 1e3:.0f} ms)",
-           latency_s=latency, sim_s=sim_s, wall_trip_s=wall_s, backlog_s=backlog_s)
+           f"/dcsms/mode (trip decided {wall_s * 1e3:.0f} ms wall after the change)",
+           latency_s=latency, sim_s=sim_s, wall_trip_s=wall_s)
     assert sim_s <= TRIP_WITHIN_S, f"tripped {sim_s:.2f} s of plant time after the change"
     # wall clock: the plant itself may run slower than real time on a loaded box
     assert latency <= WALL_BOUND_S, f"Passive only after {latency:.2f} s wall"
