@@ -141,6 +141,31 @@ def table(rows: list[Row]) -> str:
     return "\n".join(out)
 
 
+BEGIN, END = "<!-- bench table: begin -->", "<!-- bench table: end -->"
+
+
+def readme_block(result: dict[str, Any]) -> str:
+    """The README's Performance block: the machine, the table and every row's note."""
+    m = result["machine"]
+    load = m.get("load_avg")
+    head = (f"Measured {m['date'][:10]} on {m['cpu']}, {m['cores']} cores, Python {m['python']}, "
+            f"numpy {m['numpy']}, numba {m['numba']}, scipy {m['scipy']}, rosbags {m['rosbags']}"
+            + (f"; load average {load[0]:.1f} at the end (the graph rows' own)" if load else "")
+            + f"; `make bench` took {result['wall_s'] / 60:.1f} min:")
+    notes = [f"- *{r['name']}*: {r['note']}" for r in result["rows"] if r.get("note")]
+    return "\n\n".join([head, table(result["rows"]), "Notes of the same run:\n" + "\n".join(notes)])
+
+
+def write_readme(result: dict[str, Any], path: Path) -> None:
+    """Replace the text between the bench markers of ``path`` with :func:`readme_block`."""
+    doc = path.read_text()
+    head, s1, rest = doc.partition(BEGIN)
+    _, s2, tail = rest.partition(END)
+    if not (s1 and s2):
+        raise SystemExit(f"bench: markers {BEGIN} ... {END} not found in {path}")
+    path.write_text(f"{head}{BEGIN}\n{readme_block(result)}\n{END}{tail}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="dcsms_ros benchmarks")
     ap.add_argument("--smoke", action="store_true", help="tiny sizes, a few seconds")
@@ -148,7 +173,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=HERE / "results.json")
     ap.add_argument("--rt-seconds", type=float, default=None, metavar="S",
                     help="real-time graph run length (default 60 s; smoke 3 s)")
+    ap.add_argument("--readme", type=Path, default=None, metavar="FILE",
+                    help="write the table of --out (no benchmark run) into FILE's bench block")
     a = ap.parse_args(argv)
+    if a.readme is not None:
+        write_readme(json.loads(a.out.read_text()), a.readme)
+        print(f"updated {a.readme} from {a.out}")
+        return 0
     global RT_SECONDS
     RT_SECONDS = a.rt_seconds
     rows: list[Row] = []

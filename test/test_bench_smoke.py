@@ -26,3 +26,12 @@ def test_bench_smoke_writes_json(tmp_path):
         assert {"name", "value", "unit", "bench", "verdict"} <= row.keys()
         assert row["value"] is None or isinstance(row["value"], (int, float))
     assert {r["bench"] for r in data["rows"]} >= {"engine", "bags"}
+    # the same results written into a README's bench block, replacing only that block
+    readme = tmp_path / "README.md"
+    readme.write_text("intro\n<!-- bench table: begin -->\nold\n<!-- bench table: end -->\nrest\n")
+    subprocess.run([sys.executable, str(ROOT / "bench" / "run.py"), "--out", str(out),
+                    "--readme", str(readme)], check=True, env=env, timeout=60,
+                   capture_output=True)
+    text = readme.read_text()
+    assert text.startswith("intro\n") and text.endswith("rest\n") and "\nold\n" not in text
+    assert all(f"| {r['name']} |" in text for r in data["rows"])
