@@ -19,6 +19,10 @@ def _pyplot() -> Any:
     return plt
 
 
+#: Frequency band of the transmissibility figure, Hz.
+F_LO, F_HI = 0.5, 100.0
+
+
 def plot_transmissibility(path: Path, axis: str, curves: list[dict[str, Any]]) -> Path:
     """Estimated |v_pN/v_b| per mode (solid), analytic (dashed) and coherence below.
 
@@ -32,6 +36,7 @@ def plot_transmissibility(path: Path, axis: str, curves: list[dict[str, Any]]) -
     plt = _pyplot()
     fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(8, 6.5),
                                    gridspec_kw={"height_ratios": [3, 1]})
+    shown: list[np.ndarray] = []  # magnitudes inside the plotted band set the y range
     for i, c in enumerate(curves):
         color = f"C{i}"
         sel = c["f"] > 0
@@ -42,8 +47,10 @@ def plot_transmissibility(path: Path, axis: str, curves: list[dict[str, Any]]) -
             ax1.loglog(c["f"][sel], np.where(ok, mag, np.nan), color=color, label=c["label"])
         else:
             ax1.loglog(c["f"][sel], mag, color=color, label=c["label"])
+        shown.append(mag[(c["f"][sel] >= F_LO) & (c["f"][sel] <= F_HI)])
         if c.get("h_an") is not None:
             ax1.loglog(c["f_an"], np.abs(c["h_an"]), "--", color=color, lw=1)
+            shown.append(np.abs(c["h_an"])[(c["f_an"] >= F_LO) & (c["f_an"] <= F_HI)])
         for lo, hi in c.get("flagged", []):
             ax1.axvspan(lo, hi, color=color, alpha=0.12)
         ax2.semilogx(c["f"][sel], c["coherence"][sel], color=color)
@@ -57,7 +64,11 @@ def plot_transmissibility(path: Path, axis: str, curves: list[dict[str, Any]]) -
     ax2.set_ylim(0, 1.05)
     ax2.axhline(0.9, color="k", lw=0.5, ls=":")
     ax2.grid(True, which="both", alpha=0.3)
-    ax1.set_xlim(0.5, 100)
+    ax1.set_xlim(F_LO, F_HI)
+    vals = np.concatenate(shown) if shown else np.empty(0)
+    vals = vals[np.isfinite(vals) & (vals > 0)]
+    if vals.size:  # the whole band, without the decades the curves reach only past F_HI
+        ax1.set_ylim(vals.min() / 2, vals.max() * 2)
     return _save(plt, fig, path)
 
 
