@@ -156,16 +156,6 @@ def readme_block(result: dict[str, Any]) -> str:
     return "\n\n".join([head, table(result["rows"]), "Notes of the same run:\n" + "\n".join(notes)])
 
 
-def write_readme(result: dict[str, Any], path: Path) -> None:
-    """Replace the text between the bench markers of ``path`` with :func:`readme_block`."""
-    doc = path.read_text()
-    head, s1, rest = doc.partition(BEGIN)
-    _, s2, tail = rest.partition(END)
-    if not (s1 and s2):
-        raise SystemExit(f"bench: markers {BEGIN} ... {END} not found in {path}")
-    path.write_text(f"{head}{BEGIN}\n{readme_block(result)}\n{END}{tail}")
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="dcsms_ros benchmarks")
     ap.add_argument("--smoke", action="store_true", help="tiny sizes, a few seconds")
@@ -177,7 +167,15 @@ def main(argv: list[str] | None = None) -> int:
                     help="write the table of --out (no benchmark run) into FILE's bench block")
     a = ap.parse_args(argv)
     if a.readme is not None:
-        write_readme(json.loads(a.out.read_text()), a.readme)
+        from dcsms_ros.errors import DcsmsError
+        from dcsms_ros.markers import replace_between_markers
+
+        try:
+            replace_between_markers(a.readme, readme_block(json.loads(a.out.read_text())),
+                                    BEGIN, END)
+        except (DcsmsError, OSError, ValueError) as exc:
+            print(f"bench: error: {exc}", file=sys.stderr)
+            return 2
         print(f"updated {a.readme} from {a.out}")
         return 0
     global RT_SECONDS

@@ -19,6 +19,7 @@ from dcsms_ros.core.schema import (
     ParamSpec,
 )
 from dcsms_ros.errors import DcsmsError
+from dcsms_ros.markers import replace_between_markers
 
 #: Markers around the generated table in the README.
 BEGIN = "<!-- dcsms params --markdown: begin -->"
@@ -113,26 +114,13 @@ def markdown(table: list[dict[str, str]]) -> str:
     return "\n".join(lines)
 
 
-def replace_between_markers(path: Path, text: str) -> None:
-    """Replace what lies between :data:`BEGIN` and :data:`END` in ``path`` by ``text``."""
-    try:
-        doc = path.read_text()
-    except OSError as exc:
-        raise DcsmsError(f"{path}: cannot read: {exc.strerror}") from None
-    head, sep1, rest = doc.partition(BEGIN)
-    _, sep2, tail = rest.partition(END)
-    if not (sep1 and sep2):
-        raise DcsmsError(f"{path}: markers '{BEGIN}' ... '{END}' not found")
-    path.write_text(f"{head}{BEGIN}\n{text}\n{END}{tail}")
-
-
 def run(args: argparse.Namespace) -> int:
     """Print the parameter table in the chosen format."""
     table = rows()
     if args.into is not None:
         if not args.markdown:
             raise DcsmsError("--into needs --markdown")
-        replace_between_markers(args.into, markdown(table))
+        replace_between_markers(args.into, markdown(table), BEGIN, END)
         print(f"updated {args.into}")
         return 0
     if args.json:

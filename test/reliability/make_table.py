@@ -17,6 +17,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from rel_harness import results_file
 
+from dcsms_ros.errors import DcsmsError
+from dcsms_ros.markers import replace_between_markers
+
 BEGIN = "<!-- reliability table: begin -->"
 END = "<!-- reliability table: end -->"
 
@@ -50,13 +53,11 @@ def main(argv: list[str] | None = None) -> int:
     if a.into is None:
         print(text)
         return 0
-    doc = a.into.read_text()
-    head, s1, rest = doc.partition(BEGIN)
-    _, s2, tail = rest.partition(END)
-    if not (s1 and s2):
-        print(f"make_table: markers not found in {a.into}", file=sys.stderr)
+    try:
+        replace_between_markers(a.into, text, BEGIN, END)
+    except DcsmsError as exc:
+        print(f"make_table: error: {exc}", file=sys.stderr)
         return 2
-    a.into.write_text(f"{head}{BEGIN}\n{text}\n{END}{tail}")
     print(f"updated {a.into}")
     return 0
 

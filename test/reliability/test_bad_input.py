@@ -80,7 +80,7 @@ def test_bad_values_on_every_input_are_rejected_and_counted(ctx, cfg, tmp_path):
             if all(rejected().values()) or rounds == MAX_ROUNDS:
                 break
         inject_s = time.monotonic() - t0
-        got = rejected()
+        counts = rejected()
         mode_now = probe.modes[-1][1] if probe.modes else "?"
         with probe.lock:
             applied = np.array([f for _, _, f in probe.applied])
@@ -88,7 +88,6 @@ def test_bad_values_on_every_input_are_rejected_and_counted(ctx, cfg, tmp_path):
     finally:
         codes = graph.stop()
         probe.close()
-    counts = got
     logs = {name: (tmp_path / f"{name}.log").read_text() for name in counts}
     lines = {name: text.count("rejected implausible input") for name, text in logs.items()}
     report("5", f"NaN/Inf/1e6/1e300 on raw, velocity/*, force/* ({sent} per topic, "
