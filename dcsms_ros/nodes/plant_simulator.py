@@ -39,7 +39,6 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import controller_ids
 from dcsms_ros.core.simulator import PlantSimulator
-from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.guard import FORCE_LIMIT_FACTOR, InputGuard
 from dcsms_ros.nodes.hotpath import HotPath
@@ -48,11 +47,11 @@ from dcsms_ros.nodes.params import (
     GRAPH_NODES,
     SELECTORS,
     NodeConfig,
-    declare_local,
     declare_observed,
     declare_schedule,
     publishers_matched,
 )
+from dcsms_ros.nodes.plant_options import declare_plant_options, replayed_ground
 from dcsms_ros.nodes.runtime import Stoppable, main_for, wait_acked
 from dcsms_ros.nodes.wire import JointStateWriter, StampedWriter, read_stamped
 
@@ -73,50 +72,23 @@ class PlantSimulatorNode(Node, Stoppable):
         n = cfg.plant.num_stages
         self.schedule = declare_schedule(self)
         self.lockstep = self.schedule == "lockstep"
-        self.duration_s = declare_local(self, "duration_s", 0.0, "Simulated time after which "
-                                        "the node exits; 0 runs until stopped [s]", lo=0.0,
-                                        hi=1e9)
-        wanted = declare_local(self, "controllers", list(controller_ids(n)),
-                               "Controller ids whose force topics are summed (and, in lockstep, "
-                               "waited for)")
-        unknown = sorted(set(wanted) - set(controller_ids(n)))
-        if unknown:
-            raise ConfigError(f"node plant_simulator: unknown controllers {unknown}; expected "
-                              f"some of {list(controller_ids(n))}")
-        # the batch engine sums in controller_ids order; so must we, bit for bit
-        self.controllers = [c for c in controller_ids(n) if c in wanted]
-        self.retry_s = declare_local(self, "lockstep_retry_s", 0.2, "Lockstep: republish a "
-                                     "sample when a reply is missing after this wall time [s]",
-                                     read_only=False, lo=0.001, hi=60.0)
-        self.absent_after = declare_local(self, "absent_after", 3, "Lockstep: consecutive "
-                                          "timeouts after which a controller is absent",
-                                          read_only=False, lo=1, hi=1000000)
-        self.handshake_timeout_s = declare_local(self, "handshake_timeout_s", 10.0,
-                                                 "Longest wait for the graph before sample 0 "
-                                                 "[s]", lo=0.0, hi=600.0)
+        opts = declare_plant_options(self, n)
+        self.duration_s = opts.duration_s
+        self.controllers = list(opts.controllers)
+        self.retry_s = opts.retry_s
+        self.absent_after = opts.absent_after
+        self.handshake_timeout_s = opts.handshake_timeout_s
         self.observed = declare_observed(self)
-        self.publish_truth = declare_local(self, "publish_truth", True,
-                                           "Publish the true velocities on /dcsms/truth/<body>")
-        clock_hz = declare_local(self, "clock_rate_hz", 100.0, "Rate of /clock (every node's "
-                                 "sim time, used only by timers, logs and the real-time "
-                                 "watchdog; stamps carry the sample time): each /clock message "
-                                 "costs a callback in every node [Hz]", lo=1.0, hi=1e5)
-        self.timing_file = declare_local(self, "timing_file", "", "Benchmarks: write the "
-                                         "wall time of every sample and the force latencies "
-                                         "to this .npz at exit; empty: off")
-        period = declare_local(self, "status_period_s", 1.0, "Diagnostics period [s]",
-                               lo=0.05, hi=60.0)
-        ground_from = declare_local(self, "ground_from", "", "Replay the ground velocity of "
-                                    "this bag (BAG or BAG:TOPIC, resampled to plant.rate_hz) "
-                                    "instead of white noise; empty: white noise")
-        self.sim = PlantSimulator(cfg, ground=_replayed_ground(ground_from, cfg))
+        self.publish_truth = opts.publish_truth
+        self.timing_file = opts.timing_file
+        self.sim = PlantSimulator(cfg, ground=replayed_ground(opts.ground_from, cfg))
         self.force_guard = InputGuard(self, "force command", FORCE_LIMIT_FACTOR * max(
             a.limit for a in self.sim.allocators))
         self.dof = cfg.plant.dof
         self.rate = cfg.plant.rate_hz
         self.bodies = topics.body_names(n)
         self.channel_names = [c.name for c in self.sim.channels]
-        self.clock_every = max(1, int(round(cfg.plant.rate_hz / clock_hz)))
+        self.clock_every = max(1, int(round(cfg.plant.rate_hz / opts.clock_rate_hz)))
         self.total_steps = int(round(self.duration_s * self.rate)) if self.duration_s else 0
         self._timeouts(cfg)
 
@@ -185,7 +157,7 @@ class PlantSimulatorNode(Node, Stoppable):
         self._tick_timer = self.create_timer(tick, self._tick_locked, clock=steady)
         if not self.lockstep:
             self.hot.set_tick(self._hot_tick)
-        self.create_timer(period, self._report, clock=steady)
+        self.create_timer(opts.status_period_s, self._report, clock=steady)
         self.get_logger().info(
             f"{self.schedule} at {self.rate:g} Hz, {n} stages ({cfg.plant.fidelity}), "
             f"controllers {self.controllers}, {len(self.channel_names)} channels, "
@@ -463,16 +435,6 @@ class PlantSimulatorNode(Node, Stoppable):
                      **{f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
                         for c, v in self._lat.items()})
         wait_acked([self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag])
-
-
-def _replayed_ground(spec: str, cfg: SystemConfig) -> np.ndarray | None:
-    """Ground velocity (K, dof) read from ``spec`` (``BAG[:TOPIC]``), or None for white noise."""
-    if not spec:
-        return None
-    from dcsms_ros.analysis.replay import load_ground, parse_ground_spec
-
-    bag, topic = parse_ground_spec(spec)
-    return load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)
 
 
 main = main_for(PlantSimulatorNode)
