@@ -153,6 +153,16 @@ class _Loop:
     def enabled(self) -> bool:
         return self.fader.target
 
+    @property
+    def axes(self) -> NDArray[np.intp]:
+        """Indices into the (dof,) twist of the axes this loop acts on, ascending."""
+        return self._axes
+
+    @property
+    def filter(self) -> SosFilter:
+        """The compensator sections, one channel per entry of :attr:`axes`."""
+        return self._filter
+
     def enable(self, on: bool) -> None:
         """Fade the output in (True) or out (False) over ``control.fade_time_s``."""
         self.fader.set_target(on)

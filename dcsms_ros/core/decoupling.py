@@ -44,6 +44,16 @@ class Decoupler:
     def n_channels(self) -> int:
         return len(self.channel_names)
 
+    @property
+    def extension(self) -> SosFilter:
+        """The low-frequency extension filter, one channel per geophone."""
+        return self._ext
+
+    @property
+    def blocks(self) -> list[tuple[slice, Array]]:
+        """Per body: its slice of the channel vector and ``pinv(S)``, shape (dof, n_b)."""
+        return [(sl, np.asarray(m, dtype=np.float64)) for sl, m in self._blocks]
+
     def reset(self) -> None:
         """Zero the extension filter states and the counter."""
         self._ext.reset()

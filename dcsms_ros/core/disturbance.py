@@ -100,6 +100,16 @@ class BandNoise:
             for _ in range(-(-n_warm // BLOCK)):
                 self._refill()
 
+    @property
+    def sos(self) -> Array | None:
+        """The band-pass sections (digital, at ``fs``), or None for unfiltered noise."""
+        return self._sos
+
+    @property
+    def scale(self) -> Array:
+        """Per channel: output = scale * (sections applied to unit-variance white noise)."""
+        return np.asarray(self._scale, dtype=np.float64)
+
     def _refill(self) -> None:
         w = self._rng.standard_normal((BLOCK, self.channels))
         if self._sos is not None:
@@ -144,10 +154,13 @@ class Disturbances:
     ground : array_like, shape (K, dof) or (K,) for 1dof, optional
         Recorded ground twist (m/s, rad/s) replayed instead of the ground noise. It loops when
         it ends and ``ground_exhausted`` becomes True (a warning is issued once).
+    table : array_like, shape (K, N, dof), optional
+        Wrenches (N, N*m) added to the random table forces of samples 0 .. K-1 (an impulse, a
+        test signal); nothing is added after them.
     """
 
     def __init__(self, cfg: SystemConfig, seed: int | np.random.SeedSequence | None = None,
-                 ground: ArrayLike | None = None) -> None:
+                 ground: ArrayLike | None = None, table: ArrayLike | None = None) -> None:
         d = cfg.disturbance
         fs = cfg.plant.rate_hz
         self.dof = cfg.plant.dof
@@ -174,8 +187,32 @@ class Disturbances:
                                      np.random.default_rng(g_ss))
         self._fnoise = BandNoise(d.force_rms_n, d.force_band_hz, fs,
                                  self.num_stages * self._ntrans, np.random.default_rng(f_ss))
+        self._table: Array | None = None
+        if table is not None:
+            tab = np.asarray(table, dtype=np.float64)
+            if tab.ndim != 3 or tab.shape[1:] != (self.num_stages, self.dof):
+                raise ConfigError(f"table wrench: expected shape (K, {self.num_stages}, "
+                                  f"{self.dof}), got {tab.shape}")
+            if not np.isfinite(tab).all():
+                raise ConfigError("table wrench: contains NaN or Inf")
+            self._table = tab
         self.k = 0
         self.ground_exhausted = False
+
+    @property
+    def translations(self) -> int:
+        """Axes driven per body: 1 (z) in 1dof, 3 (x y z) in 6dof; rotations are never driven."""
+        return self._ntrans
+
+    @property
+    def ground_noise(self) -> BandNoise | None:
+        """The ground-velocity noise source (None when a record is replayed)."""
+        return self._gnoise
+
+    @property
+    def force_noise(self) -> BandNoise:
+        """The table-force noise source, channels stage by stage, translations per stage."""
+        return self._fnoise
 
     def next(self) -> tuple[Array, Array]:
         """Disturbances of the next sample.
@@ -200,6 +237,8 @@ class Disturbances:
             g[:self._ntrans] = self._gnoise.next()
         w = np.zeros((self.num_stages, self.dof))
         w[:, :self._ntrans] = self._fnoise.next().reshape(self.num_stages, self._ntrans)
+        if self._table is not None and self.k < self._table.shape[0]:
+            w += self._table[self.k]
         self.k += 1
         return g, w
 
@@ -226,6 +265,9 @@ class Disturbances:
         w = np.zeros((n, self.num_stages, self.dof))
         w[:, :, :self._ntrans] = self._fnoise.block(n).reshape(n, self.num_stages,
                                                                 self._ntrans)
+        if self._table is not None and self.k < self._table.shape[0]:
+            m = min(n, self._table.shape[0] - self.k)
+            w[:m] += self._table[self.k:self.k + m]
         self.k += n
         return g, w
 

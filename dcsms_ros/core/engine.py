@@ -8,6 +8,7 @@ reproduces :func:`simulate` sample for sample.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -20,6 +21,7 @@ from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.core.modes import Mode, controller_ids, controller_stage, enabled_controllers
 from dcsms_ros.core.simulator import PlantSimulator
+from dcsms_ros.core.trip import Trip, TripChecker
 
 Array = NDArray[np.float64]
 
@@ -43,7 +45,12 @@ class SimResult:
     applied : ndarray, shape (K, n_actuators)
         Forces actually applied by the actuators, N.
     mode : list of (sample index, label)
-        Mode changes: the first entry is the starting mode.
+        Mode changes: the first entry is the starting mode; an instability trip adds
+        ``Passive`` at the first sample with the controllers off.
+    trip : Trip or None
+        The instability trip of this run (:mod:`.trip`), if one happened.
+    refused : list of (sample index, label)
+        Scheduled switches refused because a trip was latched (as the mode-switch node does).
     """
 
     cfg: SystemConfig
@@ -57,12 +64,15 @@ class SimResult:
     channel_names: list[str] = field(default_factory=list)
     actuator_names: list[str] = field(default_factory=list)
     counters: dict[str, int] = field(default_factory=dict)
+    trip: Trip | None = None
+    refused: list[tuple[int, str]] = field(default_factory=list)
 
 
 def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None = None,
              schedule: Sequence[tuple[float, Mode]] = (), ground: Array | None = None,
              progress: Callable[[float], None] | None = None,
-             fast: bool | None = None) -> SimResult:
+             fast: bool | None = None, table: Array | None = None,
+             trip: bool = True) -> SimResult:
     """Run the closed loop for ``duration_s`` seconds.
 
     Parameters
@@ -87,73 +97,195 @@ def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None 
         numba; identical results, ~50-100x faster); False steps the objects sample by sample
         as the nodes do. Default: fast when numba is available. A run that meets a non-finite
         value is redone on the object path, which owns the fault handling and counters.
+    table : ndarray, shape (K, N, dof), optional
+        Wrenches added to the table forces of the first K samples (N, N*m).
+    trip : bool
+        Run the instability trip (:mod:`.trip`) as the mode-switch node does (default True).
     """
-    if fast is None:
-        fast = fastsim.available()
-    if fast and fastsim.available():
-        res = _simulate(cfg, mode, duration_s, seed, schedule, ground, progress, True)
-        if res is not None:
-            return res
-    res = _simulate(cfg, mode, duration_s, seed, schedule, ground, progress, False)
+    steps = int(round(duration_s * cfg.plant.rate_hz))
+    res = Simulation(cfg, mode, seed, schedule, ground, table, trip, fast).run(steps, progress)
+    if res is None:
+        res = Simulation(cfg, mode, seed, schedule, ground, table, trip, False).run(steps,
+                                                                                    progress)
     assert res is not None
     return res
 
 
-def _simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None,
-              schedule: Sequence[tuple[float, Mode]], ground: Array | None,
-              progress: Callable[[float], None] | None, fast: bool) -> SimResult | None:
-    n = cfg.plant.num_stages
-    steps = int(round(duration_s * cfg.plant.rate_hz))
-    sim = PlantSimulator(cfg, seed=seed, ground=ground)
-    dec = Decoupler(cfg)
-    active = enabled_controllers(mode, n)
-    ids = controller_ids(n)
-    ctrls = {cid: make_controller(cfg, cid, enabled=cid in active) for cid in ids}
-    body = {cid: (0 if cid.startswith("ff") else controller_stage(cid)) for cid in ids}
-    dof = cfg.plant.dof
-    truth = np.empty((steps, n + 1, dof))
-    vel = np.empty((steps, n + 1, dof))
-    raw = np.empty((steps, len(sim.channels)))
-    wrench_all = np.empty((len(ids), steps, dof))
-    wrench = {cid: wrench_all[i] for i, cid in enumerate(ids)}
-    applied = np.empty((steps, sim.num_actuators))
-    events = sorted(((int(round(t * cfg.plant.rate_hz)), m) for t, m in schedule),
-                    key=lambda e: e[0])
-    modes = [(0, mode.label)]
-    if fast:
-        loop = fastsim.FastLoop(sim, dec, ctrls, body, (truth, raw, vel, wrench_all, applied))
-        if not fastsim.run_fast(loop, steps, events, n, modes, progress):
+class Simulation:
+    """A closed-loop run that advances block by block (:meth:`run`); the blocks of one
+    Simulation concatenate to what a single :func:`simulate` call returns.
+
+    Parameters are those of :func:`simulate` (``schedule`` times are from t = 0 of the run).
+    """
+
+    def __init__(self, cfg: SystemConfig, mode: Mode, seed: int | None = None,
+                 schedule: Sequence[tuple[float, Mode]] = (), ground: Array | None = None,
+                 table: Array | None = None, trip: bool = True,
+                 fast: bool | None = None) -> None:
+        self.cfg = cfg
+        n = cfg.plant.num_stages
+        self.sim = PlantSimulator(cfg, seed=seed, ground=ground, table=table)
+        self.dec = Decoupler(cfg)
+        active = enabled_controllers(mode, n)
+        ids = controller_ids(n)
+        self.ctrls = {cid: make_controller(cfg, cid, enabled=cid in active) for cid in ids}
+        self.body = {cid: (0 if cid.startswith("ff") else controller_stage(cid)) for cid in ids}
+        self.events = sorted(((int(round(t * cfg.plant.rate_hz)), m) for t, m in schedule),
+                             key=lambda e: e[0])
+        self._ei = 0
+        self.modes: list[tuple[int, str]] = [(0, mode.label)]
+        self.refused: list[tuple[int, str]] = []
+        self.checker = (TripChecker(cfg.control, cfg.plant.rate_hz, n, cfg.plant.dof)
+                        if trip else None)
+        self.trip: Trip | None = None
+        self.k = 0
+        if fast is None:
+            fast = fastsim.available()
+        self.fast = bool(fast and fastsim.available())
+        self._loop = (fastsim.FastLoop(self.sim, self.dec, self.ctrls, self.body)
+                      if self.fast else None)
+
+    def _targets(self, on: frozenset[str]) -> None:
+        for cid, c in self.ctrls.items():
+            c.enable(cid in on)
+        if self._loop is not None:
+            self._loop.set_targets(on)
+
+    def _apply_events(self) -> None:
+        """Switches due at sample ``self.k``; refused while a trip is latched."""
+        n = self.cfg.plant.num_stages
+        while self._ei < len(self.events) and self.events[self._ei][0] <= self.k:
+            m = self.events[self._ei][1]
+            self._ei += 1
+            if self.trip is not None:
+                if m is not Mode.PASSIVE:
+                    self.refused.append((self.k, m.label))
+                continue
+            self._targets(enabled_controllers(m, n))
+            self.modes.append((self.k, m.label))
+
+    def _judge(self, velocity: Array, checker: TripChecker) -> tuple[int, Trip | None]:
+        return checker.push(velocity[:, 1:])
+
+    def _latch(self, trip: Trip) -> None:
+        """Every controller off from the sample after the tripping checkpoint."""
+        self.trip = trip
+        self._targets(frozenset())
+        self.modes.append((trip.sample + 1, Mode.PASSIVE.label))
+
+    def run(self, steps: int, progress: Callable[[float], None] | None = None
+            ) -> SimResult | None:
+        """The next ``steps`` samples (times continue from the previous block).
+
+        Returns None when the fast path met a non-finite value (the objects are then spent:
+        start again with ``fast=False``, which owns the fault handling).
+        """
+        n, dof = self.cfg.plant.num_stages, self.cfg.plant.dof
+        out = (np.empty((steps, n + 1, dof)), np.empty((steps, len(self.sim.channels))),
+               np.empty((steps, n + 1, dof)), np.empty((len(self.ctrls), steps, dof)),
+               np.empty((steps, self.sim.num_actuators)))
+        k0 = self.k
+        modes0 = len(self.modes)
+        refused0 = len(self.refused)
+        ok = (self._run_fast(steps, out, progress) if self._loop is not None
+              else self._run_objects(steps, out, progress))
+        if not ok:
             return None
-        return _result(cfg, sim, steps, truth, raw, vel, wrench, applied, modes)
-    every = max(steps // 100, 1)
-    ei = 0
-    for k in range(steps):
-        while ei < len(events) and events[ei][0] <= k:
-            on = enabled_controllers(events[ei][1], n)
-            for cid, c in ctrls.items():
-                c.enable(cid in on)
-            modes.append((k, events[ei][1].label))
-            ei += 1
-        truth[k] = sim.truth()
-        r = sim.measure()
-        raw[k] = r
-        tw = dec.step(r)
-        vel[k] = tw
-        out = {}
-        for cid, c in ctrls.items():
-            w = c.step(tw[body[cid]])
-            wrench[cid][k] = w
-            out[cid] = w
-        applied[k] = sim.advance(out)
-        if progress is not None and k % every == 0:
-            progress(k / steps)
-    return _result(cfg, sim, steps, truth, raw, vel, wrench, applied, modes)
+        truth, raw, vel, wrench_all, applied = out
+        wrench = {cid: wrench_all[i] for i, cid in enumerate(self.ctrls)}
+        counters = {"nonfinite_inputs": self.sim.nonfinite_inputs,
+                    "saturations": self.sim.saturations}
+        t = np.arange(k0, k0 + steps, dtype=np.float64) * self.cfg.plant.dt
+        modes = self.modes[0 if k0 == 0 else modes0:]
+        return SimResult(self.cfg, t, truth, raw, vel, wrench, applied, modes,
+                         [c.name for c in self.sim.channels],
+                         list(self.sim.actuator_names), counters, self.trip,
+                         self.refused[refused0:])
+
+    def _run_objects(self, steps: int, out: tuple[Array, ...],
+                     progress: Callable[[float], None] | None) -> bool:
+        truth, raw, vel, wrench_all, applied = out
+        sim, dec = self.sim, self.dec
+        every = max(steps // 100, 1)
+        check = self.checker.every if self.checker is not None else 0
+        pushed = 0  # rows of this block already given to the trip checker
+        for k in range(steps):
+            self._apply_events()
+            truth[k] = sim.truth()
+            r = sim.measure()
+            raw[k] = r
+            tw = dec.step(r)
+            vel[k] = tw
+            w_out = {}
+            for i, (cid, c) in enumerate(self.ctrls.items()):
+                w = c.step(tw[self.body[cid]])
+                wrench_all[i, k] = w
+                w_out[cid] = w
+            applied[k] = sim.advance(w_out)
+            self.k += 1
+            if (self.checker is not None and self.trip is None and self.k % check == 0):
+                _, trip = self._judge(vel[pushed:k + 1], self.checker)
+                pushed = k + 1
+                if trip is not None:
+                    self._latch(trip)
+            if progress is not None and k % every == 0:
+                progress(k / steps)
+        if self.checker is not None and self.trip is None and pushed < steps:
+            self._judge(vel[pushed:steps], self.checker)  # a partial checkpoint block
+        return True
+
+    def _run_fast(self, steps: int, out: tuple[Array, ...],
+                  progress: Callable[[float], None] | None) -> bool:
+        loop = self._loop
+        assert loop is not None
+        every = max(steps // 100, 1)
+        ticks = set(range(1, steps + 1, every)) if progress is not None else set()
+        k0 = self.k
+        bounds = sorted({0, steps, *range(0, steps, fastsim.BLOCK), *ticks,
+                         *(e - k0 for e, _ in self.events if 0 < e - k0 < steps)})
+        for b0, b1 in itertools.pairwise(bounds):
+            self._apply_events()
+            inputs = loop.draw(b1 - b0)
+            if not self._segment(loop, inputs, _rows(out, b0, b1)):
+                return False
+            if progress is not None and (b1 - 1) % every == 0:
+                progress((b1 - 1) / steps)
+        loop.sync(self.k)
+        return True
+
+    def _segment(self, loop: fastsim.FastLoop, inputs: fastsim.Inputs,
+                 out: tuple[Array, ...]) -> bool:
+        """Rows of one block; a trip inside it is found on a copy of the checker, then the
+        block is run again up to the tripping checkpoint, so it lands where the object path
+        puts it."""
+        m = inputs.ground.shape[0]
+        judge = self.checker is not None and self.trip is None
+        snap = loop.snapshot() if judge else None
+        if loop.run(inputs, out) != m:
+            return False
+        if not judge:
+            self.k += m
+            return True
+        assert self.checker is not None and snap is not None
+        trial = self.checker.clone()
+        used, trip = self._judge(out[2], trial)
+        self.checker = trial
+        if trip is None:
+            self.k += m
+            return True
+        loop.restore(snap)
+        if loop.run(inputs.rows(0, used), _rows(out, 0, used)) != used:
+            return False
+        self.k += used
+        self._latch(trip)
+        rest = m - used
+        if rest and loop.run(inputs.rows(used, m), _rows(out, used, m)) != rest:
+            return False
+        self.k += rest
+        return True
 
 
-def _result(cfg: SystemConfig, sim: PlantSimulator, steps: int, truth: Array, raw: Array,
-            vel: Array, wrench: dict[str, Array], applied: Array,
-            modes: list[tuple[int, str]]) -> SimResult:
-    counters = {"nonfinite_inputs": sim.nonfinite_inputs, "saturations": sim.saturations}
-    t = np.arange(steps, dtype=np.float64) * cfg.plant.dt
-    return SimResult(cfg, t, truth, raw, vel, wrench, applied, modes,
-                     [c.name for c in sim.channels], list(sim.actuator_names), counters)
+def _rows(out: tuple[Array, ...], i0: int, i1: int) -> tuple[Array, ...]:
+    """Rows i0..i1-1 of the output arrays (the wrench array is (nc, K, dof))."""
+    truth, raw, vel, wrench, applied = out
+    return (truth[i0:i1], raw[i0:i1], vel[i0:i1], wrench[:, i0:i1], applied[i0:i1])

@@ -1,25 +1,23 @@
 """Fast path of the batch engine: the core step objects' arrays driven by :mod:`.fastloop`.
 
-The objects are built exactly as for the object path (:func:`.engine.simulate`); this module
+The objects are built exactly as for the object path (:class:`.engine.Simulation`); this module
 only reads their coefficient matrices and filter states (the states are shared and advanced in
 place) and feeds the compiled loop the disturbances, replayed ground and geophone noise that the
 objects themselves draw, block by block (:meth:`.Disturbances.block`,
-:meth:`.GeophoneArray.noise_block`). Mode switches and progress calls split the run into
-blocks; between blocks only the fader targets change.
+:meth:`.GeophoneArray.noise_block`). Between blocks only the fader targets change.
 """
 
 from __future__ import annotations
 
 import importlib.util
-import itertools
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from dcsms_ros.core.decoupling import Decoupler
-from dcsms_ros.core.modes import Mode, controller_stage, enabled_controllers
+from dcsms_ros.core.modes import controller_stage
 from dcsms_ros.core.simulator import PlantSimulator
 
 Array = NDArray[np.float64]
@@ -50,6 +48,18 @@ def _sos_arrays(f: Any) -> tuple[Array, ...]:
     return (f._b0, f._b1, f._b2, f._a1, f._a2, f._z)
 
 
+class Inputs:
+    """Disturbances, replayed ground and geophone noise of a block of samples, as drawn by
+    the objects: ``ground`` (m, dof), ``table`` (m, N*dof), ``noise`` (m, n_ch or 0)."""
+
+    def __init__(self, ground: Array, table: Array, noise: Array) -> None:
+        self.ground, self.table, self.noise = ground, table, noise
+
+    def rows(self, i0: int, i1: int) -> Inputs:
+        """Rows ``i0 .. i1-1`` (views)."""
+        return Inputs(self.ground[i0:i1], self.table[i0:i1], self.noise[i0:i1])
+
+
 class FastLoop:
     """The arrays of one closed loop (plant simulator, decoupler, controllers) for the kernel.
 
@@ -61,12 +71,10 @@ class FastLoop:
         In the order the engine steps them.
     body : mapping of controller id to int
         Index of the body whose twist each controller reads.
-    out : tuple of ndarray
-        (truth, raw, velocity, wrench (nc, K, dof), applied) the kernel fills.
     """
 
     def __init__(self, sim: PlantSimulator, dec: Decoupler, ctrls: Mapping[str, Loop],
-                 body: Mapping[str, int], out: tuple[Array, ...]) -> None:
+                 body: Mapping[str, int]) -> None:
         self.sim, self.ids = sim, list(ctrls)
         p = sim.plant
         n_out, nx = p._c.shape
@@ -100,14 +108,17 @@ class FastLoop:
                       np.array([a.limit for a in sim.allocators]),
                       tuple(np.zeros(a.n_act) for a in sim.allocators),
                       np.zeros((len(sim.allocators), sim.dof)), self.counters)
-        self.out = out
         self._first = True
+        # every array the kernel advances: a snapshot of them is the loop's whole state
+        self._state = [p.x, self.geo[5], self.ext[5], *self.ctl[5], self.fade[1],
+                       self.counters]
 
     def set_targets(self, on: frozenset[str]) -> None:
         """Fader targets of every controller (a mode switch)."""
         self.fade[2][:] = [cid in on for cid in self.ids]
 
-    def _inputs(self, m: int) -> tuple[Array, Array, Array]:
+    def draw(self, m: int) -> Inputs:
+        """The objects' inputs for the next ``m`` samples."""
         sim = self.sim
         if self._first:  # sample 0 was drawn when the simulator was built
             self._first = False
@@ -119,48 +130,31 @@ class FastLoop:
         noise = sim.geophones.noise_block(m)
         if sim.geophones.noise_std <= 0.0:
             noise = np.zeros((m, 0))
-        return g, _c(w.reshape(m, -1)), noise
+        return Inputs(g, _c(w.reshape(m, -1)), noise)
 
-    def run(self, k0: int, k1: int) -> bool:
-        """Samples ``k0 .. k1-1``; False if a non-finite value appeared (results invalid)."""
+    def snapshot(self) -> list[Array]:
+        """Copies of every state the kernel advances."""
+        return [s.copy() for s in self._state]
+
+    def restore(self, snap: list[Array]) -> None:
+        """Put a :meth:`snapshot` back (in place: the objects share these arrays)."""
+        for s, v in zip(self._state, snap, strict=True):
+            np.copyto(s, v)
+
+    def run(self, inputs: Inputs, out: tuple[Array, ...]) -> int:
+        """Run one sample per input row into the rows of ``out`` (truth, raw, velocity,
+        wrench (nc, m, dof), applied); returns the rows done (fewer: a non-finite value)."""
         from dcsms_ros.core.fastloop import run_block
 
-        g, w, noise = self._inputs(k1 - k0)
-        k = run_block(k0, k1, self.plant, self.geo, self.ext, self.dec, self.ctl, self.fade,
-                      self.alloc, g, w, noise, self.out)
-        return bool(k == k1)
+        m = inputs.ground.shape[0]
+        return int(run_block(0, m, self.plant, self.geo, self.ext, self.dec, self.ctl,
+                             self.fade, self.alloc, inputs.ground, inputs.table, inputs.noise,
+                             out))
 
-    def finish(self, steps: int) -> None:
-        """Leave the objects as the object path does: draw sample ``steps``, copy counters."""
-        self.sim.disturbances.block(1)
-        self.sim.k = steps
+    def sync(self, k: int) -> None:
+        """Tell the plant simulator it is at sample ``k`` and copy the saturation count."""
+        self.sim.k = k
         self.sim.saturations = int(self.counters[1])
 
 
-def run_fast(loop: FastLoop, steps: int, events: Sequence[tuple[int, Mode]], num_stages: int,
-             modes: list[tuple[int, str]],
-             progress: Callable[[float], None] | None = None) -> bool:
-    """Drive ``loop`` over ``steps`` samples with mode ``events`` as the object path would.
-
-    Appends the applied switches to ``modes``; returns False if the run hit a non-finite value
-    (the caller falls back to the object path, which handles and counts faults).
-    """
-    every = max(steps // 100, 1)
-    ticks = set(range(1, steps + 1, every)) if progress is not None else set()
-    bounds = sorted({0, steps, *range(0, steps, BLOCK), *ticks,
-                     *(e for e, _ in events if 0 < e < steps)})
-    ei = 0
-    for k0, k1 in itertools.pairwise(bounds):
-        while ei < len(events) and events[ei][0] <= k0:
-            loop.set_targets(enabled_controllers(events[ei][1], num_stages))
-            modes.append((k0, events[ei][1].label))
-            ei += 1
-        if not loop.run(k0, k1):
-            return False
-        if progress is not None and (k1 - 1) % every == 0:
-            progress((k1 - 1) / steps)
-    loop.finish(steps)
-    return True
-
-
-__all__ = ["BLOCK", "FastLoop", "available", "run_fast"]
+__all__ = ["BLOCK", "FastLoop", "Inputs", "available"]

@@ -211,6 +211,17 @@ class SosFilter:
         self._z = np.zeros((self.sections, 2, self.channels))
         self._y = np.zeros(self.channels)
 
+    def coefficients(self) -> Array:
+        """The normalised coefficients the filter runs, shape (channels, n_sections, 6), rows
+        ``[b0 b1 b2 1 a1 a2]`` (a copy)."""
+        s = np.empty((self.channels, self.sections, 6))
+        for j, arr in enumerate((self._b0, self._b1, self._b2)):
+            s[:, :, j] = arr.T
+        s[:, :, 3] = 1.0
+        s[:, :, 4] = self._a1.T
+        s[:, :, 5] = self._a2.T
+        return s
+
     def reset(self) -> None:
         """Zero every delay state."""
         self._z.fill(0.0)
@@ -278,6 +289,44 @@ class SosFilter:
         return out
 
 
+def sos_state_space(sos: ArrayLike) -> tuple[Array, Array, Array, Array]:
+    """The exact state-space form of one channel of :class:`SosFilter`.
+
+    Parameters
+    ----------
+    sos : array_like, shape (n, 6)
+        Sections ``[b0 b1 b2 a0 a1 a2]``.
+
+    Returns
+    -------
+    a, b, c, d : ndarray, shapes (2n, 2n), (2n, 1), (1, 2n), (1, 1)
+        ``z[k+1] = a z[k] + b u[k]``, ``y[k] = c z[k] + d u[k]`` with the state ordered as the
+        filter's delays, section by section (``z[i, 0], z[i, 1]``), so a state vector read from
+        :meth:`SosFilter.get_state` evolves identically.
+    """
+    s = np.asarray(sos, dtype=np.float64).reshape(-1, 6)
+    s = s / s[:, 3:4]
+    n = 2 * s.shape[0]
+    a = np.zeros((n, n))
+    b = np.zeros((n, 1))
+    # the running input of section i as a map of the states (cu) and the filter input (du)
+    cu = np.zeros((1, n))
+    du = np.ones((1, 1))
+    for i, (b0, b1, b2, _, a1, a2) in enumerate(s):
+        j = 2 * i
+        # y_i = b0 u_i + z0; z0' = b1 u_i - a1 y_i + z1; z1' = b2 u_i - a2 y_i
+        cy = b0 * cu
+        cy[0, j] += 1.0
+        dy = b0 * du
+        a[j] = b1 * cu[0] - a1 * cy[0]
+        a[j, j + 1] += 1.0
+        b[j] = b1 * du[0] - a1 * dy[0]
+        a[j + 1] = b2 * cu[0] - a2 * cy[0]
+        b[j + 1] = b2 * du[0] - a2 * dy[0]
+        cu, du = cy, dy
+    return a, b, cu, du
+
+
 def dc_gain(tf: TF) -> float:
     """Gain at s = 0 (inf when there is an integrator)."""
     num, den = _num_den(tf)
@@ -286,5 +335,6 @@ def dc_gain(tf: TF) -> float:
 
 __all__ = [
     "IDENTITY_SECTION", "TF", "SosFilter", "dc_gain", "feedback_sos", "feedback_tf",
-    "feedforward_tf", "highpass", "leadlag", "lowpass", "notch", "to_sos", "unity",
+    "feedforward_tf", "highpass", "leadlag", "lowpass", "notch", "sos_state_space", "to_sos",
+    "unity",
 ]

@@ -141,6 +141,11 @@ class GeophoneArray:
     def n_channels(self) -> int:
         return len(self.channels)
 
+    @property
+    def filter(self) -> SosFilter:
+        """The geophone dynamics every channel runs (one channel per geophone)."""
+        return self._filter
+
     def reset(self) -> None:
         """Zero the geophone states (the noise stream continues)."""
         self._filter.reset()

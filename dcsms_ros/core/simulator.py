@@ -41,14 +41,16 @@ class PlantSimulator:
         ``cfg.disturbance.seed``.
     ground : ndarray, shape (K, dof), optional
         Recorded ground velocity (m/s) at the control rate, replayed instead of white noise.
+    table : ndarray, shape (K, N, dof), optional
+        Wrenches added to the table forces of the first K samples (N, N*m).
     """
 
     def __init__(self, cfg: SystemConfig, seed: int | None = None,
-                 ground: Array | None = None) -> None:
+                 ground: Array | None = None, table: Array | None = None) -> None:
         self.cfg = cfg
         seed = cfg.disturbance.seed if seed is None else seed
         self.plant = DiscretePlant(discretize(plant_state_space(cfg), cfg.plant.dt))
-        self.disturbances = Disturbances(cfg, seed=seed, ground=ground)
+        self.disturbances = Disturbances(cfg, seed=seed, ground=ground, table=table)
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_SENSOR_STREAM,)))
         self.geophones = GeophoneArray(cfg, rng)
         self.channels = channel_layout(cfg)
@@ -76,6 +78,11 @@ class PlantSimulator:
     @property
     def num_actuators(self) -> int:
         return self._n_act
+
+    @property
+    def channel_matrix(self) -> Array:
+        """(n_ch, (N+1)*dof) map from true twists [ground, stages] to channel velocities."""
+        return self._chan
 
     def _draw(self) -> None:
         self._ground, self._dist = self.disturbances.next()

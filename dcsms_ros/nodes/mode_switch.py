@@ -34,13 +34,13 @@ from std_srvs.srv import SetBool, Trigger
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig, params_text
 from dcsms_ros.core.modes import ALL_MODES, Mode, controller_ids, enabled_controllers, parse_mode
+from dcsms_ros.core.trip import TripMonitor
 from dcsms_ros.errors import ConfigError, ModeError
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import status, to_stamp
 from dcsms_ros.nodes.params import SELECTORS, NodeConfig, declare_local, declare_schedule
 from dcsms_ros.nodes.runtime import main_for
-from dcsms_ros.nodes.trip import TripMonitor
 from dcsms_ros.nodes.wire import read_stamped
 
 #: Reader depth of the trip monitor's velocity streams, drained every 50 ms (samples).

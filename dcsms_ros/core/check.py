@@ -1,0 +1,142 @@
+"""Is a configuration safe to run? Stability, margins and predicted actuator forces per mode.
+
+Everything is judged on the loop that runs (:mod:`.loop_model`): the closed-loop poles, the
+loop-at-a-time and per-stage disk margins (:mod:`.margins`) and the actuator forces predicted
+from the configured disturbances (:mod:`.spectra`), whose peak is taken as 4 x RMS (a Gaussian
+force exceeds it 0.006 % of the time) and compared with each actuator's limit.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.controllers import Allocator
+from dcsms_ros.core.loop_model import loop_model, poles, s_plane
+from dcsms_ros.core.margins import DiskMargin, LoopMargin, margins
+from dcsms_ros.core.modes import ALL_MODES, Mode
+from dcsms_ros.core.spectra import rms, shaped
+
+Array = NDArray[np.float64]
+
+#: Default minimum gain margin (dB) and phase margin (deg) of every loop and disk.
+MIN_GM_DB = 6.0
+MIN_PM_DEG = 30.0
+#: Predicted peak force = this many RMS.
+PEAK_FACTOR = 4.0
+
+
+@dataclass(frozen=True)
+class Stability:
+    """Poles of the discrete closed loop: ``worst`` is the pole of largest ``|z|``;
+    ``s_hz`` maps poles to ``fs ln(z) / 2 pi`` (Hz, as the paper prints eigenvalues)."""
+
+    stable: bool
+    worst_z: complex
+    worst_s_hz: complex
+    unstable_s_hz: tuple[complex, ...]
+
+    @property
+    def growth_per_s(self) -> float:
+        """Exponential growth (> 0) or decay (< 0) rate of the worst pole, 1/s."""
+        return 2.0 * math.pi * self.worst_s_hz.real
+
+
+def stability(cfg: SystemConfig, mode: Mode) -> Stability:
+    """Poles of ``mode``'s loop as it runs."""
+    m = loop_model(cfg, mode)
+    z = poles(m)
+    s = s_plane(z, m.fs) / (2.0 * math.pi)
+    i = int(np.argmax(np.abs(z)))
+    bad = np.abs(z) >= 1.0
+    order = np.argsort(-np.abs(z[bad]))
+    return Stability(not bool(bad.any()), complex(z[i]), complex(s[i]),
+                     tuple(complex(x) for x in s[bad][order]))
+
+
+@dataclass(frozen=True)
+class ModeCheck:
+    """Verdict on one mode; ``failures`` says why it is not safe (empty: safe)."""
+
+    mode: Mode
+    stability: Stability
+    loops: list[LoopMargin]
+    disks: list[DiskMargin]
+    actuators: list[str]
+    force_rms_n: Array
+    force_limit_n: Array
+    failures: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+    @property
+    def force_peak_n(self) -> Array:
+        """Predicted peak force per actuator, N (:data:`PEAK_FACTOR` x RMS)."""
+        return PEAK_FACTOR * self.force_rms_n
+
+
+def _limits(cfg: SystemConfig) -> tuple[list[str], Array]:
+    names, lim = [], []
+    for i, st in enumerate(cfg.plant.stages, 1):
+        a = Allocator(cfg, i)
+        names += [f"{st.name}/a{j}" for j in range(a.n_act)]
+        lim += [a.limit] * a.n_act
+    return names, np.asarray(lim)
+
+
+def check_mode(cfg: SystemConfig, mode: Mode, min_gm_db: float = MIN_GM_DB,
+               min_pm_deg: float = MIN_PM_DEG) -> ModeCheck:
+    """Judge one mode: stable, margins at least the minima, no predicted saturation."""
+    st = stability(cfg, mode)
+    loops, disks = margins(cfg, mode)
+    names, limit = _limits(cfg)
+    lm = shaped(cfg, loop_model(cfg, mode))
+    force = rms(lm, lm.outputs["force"])
+    fails = []
+    if not st.stable:
+        p = st.worst_s_hz
+        fails.append(f"unstable: pole {p.real:+.4f} {p.imag:+.4f}j Hz (growth "
+                     f"{st.growth_per_s:.3g} /s)")
+    else:
+        for lp in loops:
+            if abs(lp.gm_db) < min_gm_db or lp.pm_deg < min_pm_deg:
+                fails.append(f"{lp.controller}.{lp.axis} margins {lp.gm_db:.1f} dB / "
+                             f"{lp.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg")
+        for dk in disks:
+            if dk.gm_db < min_gm_db or dk.pm_deg < min_pm_deg:
+                fails.append(f"stage{dk.stage} disk margin {dk.gm_db:.1f} dB / "
+                             f"{dk.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg")
+        peak = PEAK_FACTOR * force
+        over = [f"{n} {p:.3g} N > {lim:g} N" for n, p, lim in zip(names, peak, limit,
+                                                                  strict=True) if p > lim]
+        if over:
+            fails.append("predicted saturation (peak = 4 x RMS): " + ", ".join(over))
+    return ModeCheck(mode, st, loops, disks, names, force, limit, fails)
+
+
+def check_config(cfg: SystemConfig, modes: Sequence[Mode] = ALL_MODES,
+                 min_gm_db: float = MIN_GM_DB, min_pm_deg: float = MIN_PM_DEG
+                 ) -> list[ModeCheck]:
+    """:func:`check_mode` for each of ``modes`` (default all six)."""
+    return [check_mode(cfg, m, min_gm_db, min_pm_deg) for m in modes]
+
+
+def unstable_reason(cfg: SystemConfig, mode: Mode) -> str | None:
+    """None when ``mode`` is stable as it runs, else a one-line reason naming the pole."""
+    st = stability(cfg, mode)
+    if st.stable:
+        return None
+    p = st.worst_s_hz
+    return (f"{mode.label} is unstable with this configuration: closed-loop pole at "
+            f"{p.real:+.4f} {p.imag:+.4f}j Hz (growth {st.growth_per_s:.3g} /s)")
+
+
+__all__ = ["MIN_GM_DB", "MIN_PM_DEG", "PEAK_FACTOR", "ModeCheck", "Stability", "check_config",
+           "check_mode", "stability", "unstable_reason"]

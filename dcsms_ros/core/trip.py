@@ -1,0 +1,187 @@
+"""Instability trip: band-limited RMS of each table velocity over a sliding window.
+
+An unstable loop shows up as a growing oscillation inside the control band, so the velocity is
+band-passed (``control.trip_band_hz``: drift and sensor noise outside it do not count) and its
+RMS over ``control.trip_window_s`` compared with ``control.trip_rms_mps``.
+
+Checkpoints make the trip land on a defined sample: :class:`TripChecker` judges the stage
+velocities every :func:`check_samples` samples (:data:`CHECK_PERIOD_S` of plant time), after
+sample k with ``(k + 1) % M == 0``; a trip found there disables every controller from sample
+``k + 1`` on (their gains fade out over ``control.fade_time_s``). The batch engine feeds it its
+own velocities; in lockstep the mode-switch node feeds it the decoupled velocity topics and the
+plant waits for its verdict at each checkpoint, so both trip on the same sample.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import butter, sosfilt, sosfilt_zi
+
+from dcsms_ros.core.config import ControlConfig
+
+Array = NDArray[np.float64]
+
+
+class TripMonitor:
+    """Sliding-window band-limited RMS of ``channels`` velocity signals.
+
+    Parameters
+    ----------
+    control : ControlConfig
+        ``trip_band_hz`` [low, high] Hz, ``trip_window_s`` s, ``trip_rms_mps`` m/s.
+    rate_hz : float
+        Sample rate of the fed signals, Hz.
+    channels : int
+        Number of signals (e.g. the dof of one stage).
+    """
+
+    def __init__(self, control: ControlConfig, rate_hz: float, channels: int) -> None:
+        lo, hi = control.trip_band_hz
+        nyq = rate_hz / 2.0
+        # a corner at or above Nyquist, or at 0, degenerates the band-pass to one side
+        if hi >= 0.95 * nyq and lo > 0.0:
+            self.sos = butter(2, lo, btype="highpass", fs=rate_hz, output="sos")
+        elif lo <= 0.0 and hi < 0.95 * nyq:
+            self.sos = butter(2, hi, btype="lowpass", fs=rate_hz, output="sos")
+        elif lo <= 0.0:
+            self.sos = np.array([[1.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
+        else:
+            self.sos = butter(2, [lo, hi], btype="bandpass", fs=rate_hz, output="sos")
+        self.threshold = control.trip_rms_mps
+        self.window = max(1, int(round(control.trip_window_s * rate_hz)))
+        self.channels = channels
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history (filter states and window)."""
+        self._zi = np.zeros((self.sos.shape[0], 2, self.channels))
+        self._ring = np.zeros((self.window, self.channels))
+        self._pos = 0
+        self.count = 0
+        self.rms = np.zeros(self.channels)
+
+    def update(self, block: Array) -> Array:
+        """Feed samples ``(K, channels)`` (m/s); return the RMS over the last window (m/s)."""
+        x = np.asarray(block, dtype=np.float64).reshape(-1, self.channels)
+        if x.shape[0] == 0:
+            return self.rms
+        # a NaN or an absurd value (> 10 m/s) is a corrupt message, not instability
+        with np.errstate(invalid="ignore"):
+            x = np.where(np.abs(x) <= 10.0, x, 0.0)
+        if self.count == 0:
+            # start the band-pass in the steady state of the first sample: a velocity offset
+            # (sensor drift) must not ring through it as a false trip at start or after a reset
+            self._zi = sosfilt_zi(self.sos)[:, :, None] * x[0][None, None, :]
+        y, self._zi = sosfilt(self.sos, x, axis=0, zi=self._zi)
+        y = y[-self.window:]
+        n = y.shape[0]
+        idx = (self._pos + np.arange(n)) % self.window
+        self._ring[idx] = y * y
+        self._pos = (self._pos + n) % self.window
+        self.count += x.shape[0]
+        filled = min(self.count, self.window)
+        self.rms = np.sqrt(self._ring.sum(axis=0) / filled)
+        return self.rms
+
+    def tripped(self) -> bool:
+        """True if some channel's RMS exceeds the threshold."""
+        return bool((self.rms > self.threshold).any())
+
+
+#: Plant time between two trip checkpoints, s.
+CHECK_PERIOD_S = 0.05
+
+
+def check_samples(rate_hz: float) -> int:
+    """Samples between two checkpoints at ``rate_hz`` (Hz): :data:`CHECK_PERIOD_S`, >= 1."""
+    return max(1, int(round(CHECK_PERIOD_S * rate_hz)))
+
+
+@dataclass(frozen=True)
+class Trip:
+    """A trip: ``sample`` is the checkpoint's last sample k (the controllers are off from
+    k + 1), ``stage`` 1-based, ``axis`` index into the stage's dof vector, ``rms`` (m/s)."""
+
+    sample: int
+    stage: int
+    axis: int
+    rms: float
+    reason: str
+
+
+class TripChecker:
+    """Every stage's :class:`TripMonitor`, judged at checkpoints.
+
+    Parameters
+    ----------
+    control : ControlConfig
+    rate_hz : float
+        Sample rate, Hz.
+    num_stages, dof : int
+        Shape of the stage velocities fed.
+    """
+
+    def __init__(self, control: ControlConfig, rate_hz: float, num_stages: int,
+                 dof: int) -> None:
+        self.control = control
+        self.every = check_samples(rate_hz)
+        self.monitors = [TripMonitor(control, rate_hz, dof) for _ in range(num_stages)]
+        self.dof = dof
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history; the next sample fed is a checkpoint block's first."""
+        for m in self.monitors:
+            m.reset()
+        self._pending = np.zeros((0, len(self.monitors), self.dof))
+        self.k = 0  # samples fed so far
+
+    def clone(self) -> TripChecker:
+        """An independent copy (to judge a block before committing to it)."""
+        return copy.deepcopy(self)
+
+    def push(self, velocity: Array) -> tuple[int, Trip | None]:
+        """Feed stage velocities ``(K, N, dof)`` (m/s, samples in order) until a checkpoint
+        trips.
+
+        Returns
+        -------
+        consumed : int
+            Rows taken: all of them, or through the tripping checkpoint's sample.
+        trip : Trip or None
+        """
+        v = np.asarray(velocity, dtype=np.float64)
+        used = 0
+        while used < v.shape[0]:
+            need = self.every - self._pending.shape[0]
+            take = v[used:used + need]
+            used += take.shape[0]
+            self.k += take.shape[0]
+            if take.shape[0] < need:
+                self._pending = np.concatenate([self._pending, take])
+                break
+            block = np.concatenate([self._pending, take]) if self._pending.size else take
+            self._pending = np.zeros((0, len(self.monitors), self.dof))
+            trip = self._judge(block)
+            if trip is not None:
+                return used, trip
+        return used, None
+
+    def _judge(self, block: Array) -> Trip | None:
+        worst: Trip | None = None
+        for i, mon in enumerate(self.monitors):
+            rms = mon.update(block[:, i])
+            if mon.tripped() and worst is None:
+                j = int(np.argmax(rms / mon.threshold))
+                lo, hi = self.control.trip_band_hz
+                worst = Trip(self.k - 1, i + 1, j, float(rms[j]),
+                             f"stage{i + 1} velocity RMS {rms[j]:.3g} m/s (axis {j}) above "
+                             f"{mon.threshold:g} m/s in {lo:g}-{hi:g} Hz")
+        return worst
+
+
+__all__ = ["CHECK_PERIOD_S", "Trip", "TripChecker", "TripMonitor", "check_samples"]
