@@ -65,7 +65,7 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
 typecheck: $(STAMP)
-	$(VENV)/bin/mypy dcsms_ros/core dcsms_ros/analysis
+	$(VENV)/bin/mypy dcsms_ros/core dcsms_ros/analysis dcsms_ros/design
 
 # pytest exits 5 when it collects nothing; that fails the target like any other error.
 pytest: $(STAMP)

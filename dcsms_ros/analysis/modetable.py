@@ -68,7 +68,8 @@ def format_table(rows: Sequence[dict], axes: Sequence[str]) -> str:
             ax = r["axes"].get(a, {})
             n, db = ax.get("normalized"), ax.get("attenuation_db")
             cells.append(f"{_num(n, '.3f'):>12}{_num(db, '+.1f'):>8}")
-        lines.append(f"{r['mode']:<10}" + "".join(cells))
+        flag = "  UNSTABLE" if r.get("stability", {}).get("unstable") else ""
+        lines.append(f"{r['mode']:<10}" + "".join(cells) + flag)
     return "\n".join(lines)
 
 

@@ -92,12 +92,16 @@ def _fmt(x: Any, spec: str) -> str:
 
 def _md_table4(s: Summary) -> str:
     head = "| mode | " + " | ".join(f"{a.upper()} normalized | {a.upper()} dB" for a in s.axes)
-    rows = [head + " |", "|---|" + "---:|---:|" * len(s.axes)]
+    rows = [head + " | stability |", "|---|" + "---:|---:|" * len(s.axes) + "---|"]
     for seg in s.segments:
         cells = []
         for a in s.axes:
             ax = seg["axes"][a]
             cells += [_fmt(ax.get("normalized"), ".3f"), _fmt(ax.get("attenuation_db"), "+.1f")]
+        st = seg.get("stability", {})
+        grow = ", ".join(f"{g['body']} {g['axis']} grows {g['rate_per_s']:.2g} /s"
+                         for g in st.get("growing", []))
+        cells.append(f"**unstable** ({grow})" if st.get("unstable") else "steady")
         rows.append(f"| {seg['mode']} | " + " | ".join(cells) + " |")
     return "\n".join(rows)
 

@@ -15,6 +15,7 @@ from dcsms_ros.analysis import modetable
 from dcsms_ros.analysis.criteria import evaluate
 from dcsms_ros.analysis.reader import AXIS_NAMES, BagData, Progress, config_from_yaml, read_bag
 from dcsms_ros.analysis.segments import MIN_SEGMENT_S, SETTLE_S, Segment, align, split_segments
+from dcsms_ros.analysis.stability import envelope
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import parse_mode
 from dcsms_ros.jsonutil import jsonable
@@ -195,7 +196,26 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
         js["axes"][a] = ax
         arrays[a] = {"f": f, "psd": p_top, "tfs": tfs, "analytic": an}
     js["forces"] = _forces(data, seg, cfg)
+    js["stability"] = _stability(al.bodies, stages, axes, al.fs, summary, where)
     return {"json": js, "arrays": arrays, "top": top}
+
+
+def _stability(bodies: dict[str, np.ndarray], stages: list[str], axes: list[str], fs: float,
+               summary: Summary, where: str) -> dict[str, Any]:
+    """Growing envelopes of the stage velocities (:mod:`.stability`): an unstable segment."""
+    growing: list[dict[str, Any]] = []
+    for s in stages:
+        for a in axes:
+            env = envelope(bodies[s][:, AXIS_NAMES.index(a)], fs)
+            if env is not None and env.growing:
+                growing.append({"body": s, "axis": a, "rate_per_s": env.rate_per_s,
+                                "factor": env.factor})
+    if growing:
+        g = max(growing, key=lambda x: float(x["rate_per_s"]))
+        summary.warnings.append(f"{where}: UNSTABLE: the {g['body']} {g['axis']} velocity "
+                                f"envelope grows {g['rate_per_s']:.3g} /s (x{g['factor']:.1f} "
+                                f"over the segment)")
+    return {"unstable": bool(growing), "growing": growing}
 
 
 def _analytic(cfg: SystemConfig | None, seg: Segment, axis: str, tfs: list[est.TransferEstimate],

@@ -35,8 +35,9 @@ def register(subparsers: Any) -> None:
 class _ProgressBar:
     """A one-line text bar on stderr (only when stderr is a terminal or the bag is long)."""
 
-    def __init__(self, stream: Any = sys.stderr) -> None:
-        self.stream = stream
+    def __init__(self, stream: Any = None) -> None:
+        # looked up when used: a stream bound at import time may be closed by then (a capture)
+        self.stream = stream if stream is not None else sys.stderr
         self.last = 0.0
         self.shown = False
 

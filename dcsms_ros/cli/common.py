@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from dcsms_ros.core.config import SystemConfig, load_config, parse_override
+from dcsms_ros.core.safety import MIN_GM_DB, MIN_PM_DEG
 from dcsms_ros.errors import ConfigError, DcsmsError
 from dcsms_ros.jsonutil import jsonable
 
@@ -93,6 +94,16 @@ def add_output_options(parser: argparse.ArgumentParser, plot: bool = True) -> No
                             help="write PNG figures into DIR (created if needed)")
 
 
+def add_margin_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--min-gm DB`` and ``--min-pm DEG`` (the safety check's minimum margins)."""
+    parser.add_argument("--min-gm", type=float, default=MIN_GM_DB, metavar="DB",
+                        help=f"minimum gain margin of every loop and disk, dB (default "
+                        f"{MIN_GM_DB:g})")
+    parser.add_argument("--min-pm", type=float, default=MIN_PM_DEG, metavar="DEG",
+                        help=f"minimum phase margin of every loop and disk, deg (default "
+                        f"{MIN_PM_DEG:g})")
+
+
 def load_cfg(args: argparse.Namespace) -> SystemConfig:
     """The configuration named by ``--config`` with every ``--set`` applied and validated."""
     path = args.config if args.config is not None else default_config_path()
@@ -118,6 +129,6 @@ def plot_dir(path: Path) -> Path:
 
 
 __all__ = [
-    "add_config_options", "add_output_options", "default_config_path", "find_share_file",
+    "add_config_options", "add_margin_options", "add_output_options", "default_config_path", "find_share_file",
     "jsonable", "load_cfg", "plot_dir", "print_json", "share_candidates",
 ]

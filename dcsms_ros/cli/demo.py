@@ -222,7 +222,11 @@ def _verdict(summary: Any) -> bool:
         print(f"DFBC+FFC / Passive in Z = {best:.3f} "
               f"({'<=' if best <= BEST_MAX else '>'} {BEST_MAX:g})")
     print(f"actuator forces: peak {100 * peak:.1f} % of the limit, {sat} saturated samples")
-    return ordered and best is not None and best <= BEST_MAX and sat == 0
+    unstable = [s["mode"] for s in summary.segments if s.get("stability", {}).get("unstable")]
+    if unstable:
+        print(f"UNSTABLE: the velocity envelope grows in {', '.join(unstable)} (see the "
+              f"report's warnings)")
+    return ordered and best is not None and best <= BEST_MAX and sat == 0 and not unstable
 
 
 __all__ = ["register", "run"]

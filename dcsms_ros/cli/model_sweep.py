@@ -14,18 +14,11 @@ from typing import Any
 import numpy as np
 
 from dcsms_ros.cli.common import load_cfg, plot_dir, print_json
-from dcsms_ros.cli.model import (
-    TWO_PI,
-    Array,
-    CArray,
-    _check_axis,
-    _db,
-    _grid,
-    _mode_dict,
-    oscillatory_modes,
-)
+from dcsms_ros.cli.model_common import TWO_PI, Array, CArray, check_axis, db, grid
+from dcsms_ros.cli.model_eig import ideal_poles, mode_dict, oscillatory
 from dcsms_ros.core.config import SystemConfig, scaled
 from dcsms_ros.core.model import axis_names, input_slices, plant_state_space
+from dcsms_ros.core.modes import Mode
 from dcsms_ros.core.schema import resolve_alias
 from dcsms_ros.errors import ConfigError
 
@@ -76,8 +69,8 @@ def _pick(n: int, k: int) -> list[int]:
 def sweep(args: argparse.Namespace) -> int:
     """Scale ``--param`` by every factor; print/plot loci, FRC and PSD of the top stage."""
     base = load_cfg(args)
-    _check_axis(base, args.axis)
-    f = _grid(args)
+    check_axis(base, args.axis)
+    f = grid(args)
     if args.curves < 1:
         raise ConfigError(f"--curves must be >= 1, got {args.curves}")
     if args.ground_psd < 0 or args.force_psd < 0:
@@ -85,7 +78,7 @@ def sweep(args: argparse.Namespace) -> int:
     name = resolve_alias(args.param)
     cfgs = [scaled(base, args.param, x) for x in args.factors]
     loci = [_eigenvalues_hz(c) for c in cfgs]
-    modes = [oscillatory_modes(c) for c in cfgs]
+    modes = [oscillatory(ideal_poles(c, Mode.PASSIVE)) for c in cfgs]
     top = f"v_p{base.plant.num_stages}"
     picked = _pick(len(cfgs), args.curves)
     frc: list[CArray] = []
@@ -99,9 +92,9 @@ def sweep(args: argparse.Namespace) -> int:
         print_json({
             "param": args.param, "name": name, "axis": args.axis, "factors": args.factors,
             "eigenvalues_hz": loci,
-            "modes": [[_mode_dict(m) for m in ms] for ms in modes],
+            "modes": [[mode_dict(m) for m in ms] for ms in modes],
             "frequency_hz": f,
-            "curves": [{"factor": args.factors[i], f"{top}/v_b_db": _db(h),
+            "curves": [{"factor": args.factors[i], f"{top}/v_b_db": db(h),
                         f"psd_{top}": p} for i, h, p in zip(picked, frc, psd, strict=True)],
         })
     else:
@@ -167,7 +160,7 @@ def _plot_frc_psd(out: Path, args: argparse.Namespace, top: str, f: Array,
 
     fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(12, 4.8))
     for i, (x, h, p) in enumerate(zip(factors, frc, psd, strict=True)):
-        ax_a.semilogx(f, _db(h), color=f"C{i % 10}", label=f"{args.param} x {x:g}")
+        ax_a.semilogx(f, db(h), color=f"C{i % 10}", label=f"{args.param} x {x:g}")
         ax_b.loglog(f, p, color=f"C{i % 10}", label=f"{args.param} x {x:g}")
     ax_a.set_ylabel(f"|{top}/v_b| (dB)")
     ax_a.set_title(f"(a) FRC {top}/v_b, axis {args.axis}")

@@ -17,18 +17,13 @@ from numpy.typing import NDArray
 
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import Allocator
-from dcsms_ros.core.loop_model import loop_model, poles, s_plane
+from dcsms_ros.core.loop_model import loop_model, pole_parts, poles, s_plane
 from dcsms_ros.core.margins import DiskMargin, LoopMargin, margins
 from dcsms_ros.core.modes import ALL_MODES, Mode
+from dcsms_ros.core.safety import MIN_GM_DB, MIN_PM_DEG, PEAK_FACTOR
 from dcsms_ros.core.spectra import rms, shaped
 
 Array = NDArray[np.float64]
-
-#: Default minimum gain margin (dB) and phase margin (deg) of every loop and disk.
-MIN_GM_DB = 6.0
-MIN_PM_DEG = 30.0
-#: Predicted peak force = this many RMS.
-PEAK_FACTOR = 4.0
 
 
 @dataclass(frozen=True)
@@ -45,6 +40,41 @@ class Stability:
     def growth_per_s(self) -> float:
         """Exponential growth (> 0) or decay (< 0) rate of the worst pole, 1/s."""
         return 2.0 * math.pi * self.worst_s_hz.real
+
+
+@dataclass(frozen=True)
+class Pole:
+    """One closed-loop pole: ``s_hz`` = eigenvalue / 2 pi (Hz; discrete: ``fs ln z / 2 pi``),
+    ``z`` the discrete pole (``nan`` for a continuous model), ``part`` the part of the loop
+    that participates most (``plant``, ``geophones``, ``extension``, a controller id)."""
+
+    s_hz: complex
+    z: complex
+    part: str
+
+    @property
+    def frequency_hz(self) -> float:
+        """Undamped natural frequency ``|s| / 2 pi``, Hz."""
+        return abs(self.s_hz)
+
+    @property
+    def damping_ratio(self) -> float:
+        """``-Re(s) / |s|`` (negative: growing)."""
+        r = abs(self.s_hz)
+        return -self.s_hz.real / r if r > 0 else 1.0
+
+    @property
+    def unstable(self) -> bool:
+        return abs(self.z) >= 1.0 if math.isfinite(abs(self.z)) else self.s_hz.real > 0.0
+
+
+def loop_poles(cfg: SystemConfig, mode: Mode) -> list[Pole]:
+    """Every pole of ``mode``'s loop as it runs, largest ``|z|`` first."""
+    m = loop_model(cfg, mode)
+    z, parts = pole_parts(m)
+    s = s_plane(z, m.fs) / (2.0 * math.pi)
+    order = np.argsort(-np.abs(z), kind="stable")
+    return [Pole(complex(s[i]), complex(z[i]), parts[i]) for i in order]
 
 
 def stability(cfg: SystemConfig, mode: Mode) -> Stability:
@@ -82,7 +112,8 @@ class ModeCheck:
         return PEAK_FACTOR * self.force_rms_n
 
 
-def _limits(cfg: SystemConfig) -> tuple[list[str], Array]:
+def actuator_limits(cfg: SystemConfig) -> tuple[list[str], Array]:
+    """Every actuator's name (``stage<i>/a<j>``) and force limit (N), in input order."""
     names, lim = [], []
     for i, st in enumerate(cfg.plant.stages, 1):
         a = Allocator(cfg, i)
@@ -96,7 +127,7 @@ def check_mode(cfg: SystemConfig, mode: Mode, min_gm_db: float = MIN_GM_DB,
     """Judge one mode: stable, margins at least the minima, no predicted saturation."""
     st = stability(cfg, mode)
     loops, disks = margins(cfg, mode)
-    names, limit = _limits(cfg)
+    names, limit = actuator_limits(cfg)
     lm = shaped(cfg, loop_model(cfg, mode))
     force = rms(lm, lm.outputs["force"])
     fails = []
@@ -138,5 +169,6 @@ def unstable_reason(cfg: SystemConfig, mode: Mode) -> str | None:
             f"{p.real:+.4f} {p.imag:+.4f}j Hz (growth {st.growth_per_s:.3g} /s)")
 
 
-__all__ = ["MIN_GM_DB", "MIN_PM_DEG", "PEAK_FACTOR", "ModeCheck", "Stability", "check_config",
-           "check_mode", "stability", "unstable_reason"]
+__all__ = ["MIN_GM_DB", "MIN_PM_DEG", "PEAK_FACTOR", "ModeCheck", "Pole", "Stability",
+           "actuator_limits", "check_config", "check_mode", "loop_poles", "stability",
+           "unstable_reason"]

@@ -7,6 +7,7 @@ consume it (``next()`` per sample or ``block(n)``).
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 
@@ -54,6 +55,12 @@ def noise_gain(sos: Array | None) -> float:
     """Output variance per unit input variance of white noise: the impulse-response energy."""
     if sos is None:
         return 1.0
+    return _noise_gain(np.ascontiguousarray(sos, dtype=np.float64).tobytes())
+
+
+@functools.lru_cache(maxsize=64)
+def _noise_gain(key: bytes) -> float:
+    sos = np.frombuffer(key, dtype=np.float64).reshape(-1, 6).copy()
     r = _slowest_pole_radius(sos)
     # long enough for the response energy to fall below 1e-16 of its start
     n = 64 if r <= 0.0 else int(math.ceil(math.log(1e-16) / (2.0 * math.log(r)))) + 64
@@ -76,6 +83,8 @@ class BandNoise:
         Sample rate in Hz.
     channels : int
     rng : numpy.random.Generator
+    warm : bool
+        Warm the filter up (False: only its shape is wanted, no sample will be drawn).
 
     Notes
     -----
@@ -84,7 +93,7 @@ class BandNoise:
     """
 
     def __init__(self, rms: float | ArrayLike, band_hz: tuple[float, float] | ArrayLike,
-                 fs: float, channels: int, rng: np.random.Generator) -> None:
+                 fs: float, channels: int, rng: np.random.Generator, warm: bool = True) -> None:
         self.channels = int(channels)
         self._rng = rng
         self._sos = band_sos(band_hz, fs)
@@ -94,7 +103,7 @@ class BandNoise:
                     else np.zeros((self._sos.shape[0], 2, self.channels)))
         self._buf = np.zeros((0, self.channels))
         self._k = 0
-        if self._sos is not None:
+        if self._sos is not None and warm:
             r = _slowest_pole_radius(self._sos)
             n_warm = 0 if r <= 0.0 else int(math.ceil(math.log(1e-6) / math.log(r)))
             for _ in range(-(-n_warm // BLOCK)):
@@ -157,10 +166,14 @@ class Disturbances:
     table : array_like, shape (K, N, dof), optional
         Wrenches (N, N*m) added to the random table forces of samples 0 .. K-1 (an impulse, a
         test signal); nothing is added after them.
+    warm : bool
+        False builds the sources without warming their filters up: for their shapes only
+        (:mod:`.spectra`); drawing from them then starts with a transient.
     """
 
     def __init__(self, cfg: SystemConfig, seed: int | np.random.SeedSequence | None = None,
-                 ground: ArrayLike | None = None, table: ArrayLike | None = None) -> None:
+                 ground: ArrayLike | None = None, table: ArrayLike | None = None,
+                 warm: bool = True) -> None:
         d = cfg.disturbance
         fs = cfg.plant.rate_hz
         self.dof = cfg.plant.dof
@@ -184,9 +197,9 @@ class Disturbances:
         else:
             rms = d.ground_rms_mps[2:3] if self.dof == 1 else d.ground_rms_mps
             self._gnoise = BandNoise(rms, d.ground_band_hz, fs, self._ntrans,
-                                     np.random.default_rng(g_ss))
+                                     np.random.default_rng(g_ss), warm)
         self._fnoise = BandNoise(d.force_rms_n, d.force_band_hz, fs,
-                                 self.num_stages * self._ntrans, np.random.default_rng(f_ss))
+                                 self.num_stages * self._ntrans, np.random.default_rng(f_ss), warm)
         self._table: Array | None = None
         if table is not None:
             tab = np.asarray(table, dtype=np.float64)

@@ -51,7 +51,7 @@ def shaped(cfg: SystemConfig, model: LoopModel) -> LoopModel:
         stage) and ``noise`` (one per geophone channel), each unit-variance white; the outputs
         and the states of ``model`` come first, then the shaping filters' states.
     """
-    dist = Disturbances(cfg, seed=0)
+    dist = Disturbances(cfg, seed=0, warm=False)
     nt = dist.translations
     n, dof = cfg.plant.num_stages, cfg.plant.dof
     ga, gb, gc, gd = _source(dist.ground_noise, nt)

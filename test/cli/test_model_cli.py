@@ -27,11 +27,12 @@ def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
 
 
 def test_eig_json_reproduces_eq9(capsys: pytest.CaptureFixture[str]) -> None:
-    """eig --json gives the paper's Eq. 9 eigenvalues to the printed 4 decimals."""
-    status, out, _ = run(capsys, "model", "eig", "--json")
+    """eig --ideal --json gives the paper's Eq. 9 eigenvalues to the printed 4 decimals."""
+    status, out, _ = run(capsys, "model", "eig", "--ideal", "--json")
     assert status == 0
     doc = json.loads(out)
-    assert list(doc) == ["stable", "modes"] and doc["stable"] is True
+    assert list(doc) == ["model", "mode", "stable", "worst_pole", "unstable_poles", "modes"]
+    assert doc["stable"] is True and doc["unstable_poles"] == []
     assert len(doc["modes"]) == len(EQ9)
     for mode, (re, im, f, zeta) in zip(doc["modes"], EQ9, strict=True):
         assert list(mode) == ["eigenvalue_hz", "frequency_hz", "damping_ratio"]
@@ -157,24 +158,24 @@ def test_import_error_inside_module_surfaces(monkeypatch: pytest.MonkeyPatch) ->
 def test_keyboard_interrupt_exits_130(capsys: pytest.CaptureFixture[str],
                                       monkeypatch: pytest.MonkeyPatch) -> None:
     """Ctrl-C during a command exits 130 without a traceback."""
-    from dcsms_ros.cli import model
+    from dcsms_ros.cli import model_eig
 
     def interrupted(args: object) -> int:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(model, "run_eig", interrupted)
+    monkeypatch.setattr(model_eig, "run", interrupted)
     status, _, err = run(capsys, "model", "eig")
     assert status == 130 and err == ""
 
 
 def test_installed_console_script(tmp_path: Path) -> None:
-    """The installed ``dcsms`` console script runs eig --json from any directory."""
+    """The installed ``dcsms`` console script runs eig --ideal --json from any directory."""
     exe = Path(sys.executable).parent / "dcsms"
     if not exe.is_file():
         pytest.skip("dcsms console script not installed (run `make venv`)")
     env = dict(os.environ)
     env.pop("ROS_AUTOMATIC_DISCOVERY_RANGE", None)
-    proc = subprocess.run([str(exe), "model", "eig", "--json"], cwd=tmp_path, env=env,
+    proc = subprocess.run([str(exe), "model", "eig", "--ideal", "--json"], cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=120, check=False)
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout)

@@ -29,6 +29,9 @@ CASES = {
     "sixdof": ("tem_three_point.yaml", {}, Mode.DFBC_FFC, SCHEDULE, 1.2),
     "sixdof_saturating": ("tem_three_point.yaml", {"actuators.force_limit_n": 0.01},
                           Mode.DFBC_FFC, SCHEDULE, 1.2),
+    # fb_stage2 x50 is unstable: the trip latches Passive inside a fast block, which is rerun
+    "tripping": ("table1.yaml", {"feedback.stage2.gain": [0.0, 0.0, 2.25e6, 0.0, 0.0, 0.0]},
+                 Mode.PASSIVE, ((0.2, Mode.DFBC), (1.0, Mode.FBC)), 1.5),
 }
 
 
@@ -56,8 +59,27 @@ def test_fast_matches_object_path(name):
         np.testing.assert_allclose(a[key], b[key], rtol=1e-9, atol=0.0, err_msg=key)
     assert fast.counters == slow.counters
     assert fast.mode == slow.mode
+    assert fast.trip == slow.trip and fast.refused == slow.refused
     assert fast.channel_names == slow.channel_names
     assert fast.actuator_names == slow.actuator_names
+
+
+def test_trip_latches_passive_at_a_checkpoint_and_refuses_switches():
+    """The unstable gain trips at a checkpoint; Passive from the next sample; the later switch
+    to FBC is refused, as the mode-switch node refuses it; a stable run never trips."""
+    from dcsms_ros.core.trip import check_samples
+
+    fast, slow = _pair("tripping")
+    for key, v in _series(fast).items():
+        assert np.array_equal(v, _series(slow)[key]), key
+    assert fast.trip is not None and fast.trip.stage in (1, 2)
+    every = check_samples(fast.cfg.plant.rate_hz)
+    assert (fast.trip.sample + 1) % every == 0
+    assert fast.mode == [(0, "Passive"), (400, "DFBC"), (fast.trip.sample + 1, "Passive")]
+    assert fast.refused == [(2000, "FBC")]
+    assert "above 0.001 m/s" in fast.trip.reason
+    calm, _ = _pair("dfbc_ffc")
+    assert calm.trip is None
 
 
 @pytest.mark.parametrize("name", ["saturating", "sixdof_saturating"])

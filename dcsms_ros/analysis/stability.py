@@ -1,0 +1,54 @@
+"""Is a recorded segment unstable? A growing envelope, told apart from stationary scatter.
+
+The velocity's RMS is taken over consecutive windows; the envelope's growth rate is the slope
+of log RMS against time (least squares), and the growth over the segment the ratio of the RMS
+in its last quarter to its first. A stationary record, even a narrow-band one, keeps those
+ratios near 1 (a quarter of a 12 s segment holds a few hundred cycles at the table modes); an
+unstable loop multiplies them. The segment is called unstable when the RMS of every quarter is
+above the one before and the last quarter's is at least :data:`GROWTH_FACTOR` times the first's.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: Last-quarter over first-quarter RMS that calls a monotone envelope unstable.
+GROWTH_FACTOR = 3.0
+#: Window of the envelope's RMS, s (at most a sixteenth of the record).
+WINDOW_S = 0.5
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """Envelope of one signal: ``rate_per_s`` (slope of ln RMS, 1/s), ``factor`` (last over
+    first quarter RMS), ``growing`` (the verdict, module docstring)."""
+
+    rate_per_s: float
+    factor: float
+    growing: bool
+
+
+def envelope(x: NDArray[np.floating], fs: float) -> Envelope | None:
+    """Growth of ``x`` (K,) sampled at ``fs`` (Hz); None when too short to judge (< 16
+    windows) or all zero."""
+    v = np.asarray(x, dtype=np.float64)
+    w = max(1, min(int(WINDOW_S * fs), v.size // 16))
+    n = v.size // w
+    if n < 16:
+        return None
+    r = np.sqrt(np.mean(v[: n * w].reshape(n, w) ** 2, axis=1))
+    if not np.all(r > 0):
+        return None
+    t = (np.arange(n) + 0.5) * w / fs
+    rate = float(np.polyfit(t, np.log(r), 1)[0])
+    q = [float(np.sqrt(np.mean(c ** 2))) for c in np.array_split(r, 4)]
+    factor = q[-1] / q[0]
+    growing = all(b > a for a, b in itertools.pairwise(q)) and factor >= GROWTH_FACTOR
+    return Envelope(rate, factor, growing)
+
+
+__all__ = ["GROWTH_FACTOR", "WINDOW_S", "Envelope", "envelope"]

@@ -1,0 +1,1 @@
+"""Controller design on the model of the loop as it runs (tuning)."""

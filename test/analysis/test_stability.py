@@ -1,0 +1,64 @@
+"""A growing envelope is called unstable in the report and the demo's verdict; a steady one
+never is."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from dcsms_ros.analysis.export import write_result_bag
+from dcsms_ros.analysis.report import analyze
+from dcsms_ros.analysis.stability import envelope
+from dcsms_ros.cli import main
+from dcsms_ros.core.check import stability
+from dcsms_ros.core.config import load_config
+from dcsms_ros.core.engine import simulate
+from dcsms_ros.core.modes import ALL_MODES, Mode
+
+ROOT = Path(__file__).resolve().parents[2]
+FIXTURE = ROOT / "test" / "fixtures" / "tem_unstable.yaml"
+
+
+@pytest.mark.parametrize("mode", ALL_MODES, ids=lambda m: m.value)
+def test_steady_modes_are_not_called_unstable(mode):
+    """12 s of every stable mode of Table 1: no stage velocity envelope is called growing."""
+    cfg = load_config(ROOT / "config" / "table1.yaml")
+    res = simulate(cfg, mode, 13.0, seed=5)
+    for i in (1, 2):
+        env = envelope(res.velocity[2000:, i, 0], cfg.plant.rate_hz)
+        assert env is not None and not env.growing, (i, env)
+        assert abs(env.factor - 1.0) < 0.5
+
+
+def test_growing_envelope_is_reported_unstable(tmp_path, capsys):
+    """The unstable fixture in DFBC: the analysis flags the segment (rate of the order of the
+    model's growth), report.md and the warnings say so, the Passive segment stays steady."""
+    cfg = load_config(FIXTURE)
+    res = simulate(cfg, Mode.PASSIVE, 26.0, schedule=[(13.0, Mode.DFBC)], seed=3, trip=False)
+    bag = tmp_path / "bag"
+    write_result_bag(res, bag)
+    out = tmp_path / "report"
+    summary = analyze([bag], out_dir=out)
+    seg = {s["mode"]: s for s in summary.segments}
+    assert seg["Passive"]["stability"]["unstable"] is False
+    st = seg["DFBC"]["stability"]
+    assert st["unstable"] is True
+    rate = max(g["rate_per_s"] for g in st["growing"])
+    assert rate == pytest.approx(stability(cfg, Mode.DFBC).growth_per_s, rel=0.3)
+    assert any("UNSTABLE" in w and "DFBC" in w for w in summary.warnings)
+    assert "**unstable**" in (out / "report.md").read_text()
+    assert "UNSTABLE" in summary.table()
+    capsys.readouterr()
+    status = main(["analyze", str(bag)])
+    got = capsys.readouterr()
+    assert status == 0 and "UNSTABLE" in got.out, got.err
+
+
+def test_demo_verdict_fails_on_an_unstable_mode(tmp_path, capsys):
+    """`dcsms demo --engine batch` on the fixture: the verdict names DFBC unstable, exit 1."""
+    status = main(["demo", "--engine", "batch", "--config", str(FIXTURE), "--modes",
+                   "Passive,DFBC", "--out", str(tmp_path / "demo")])
+    out = capsys.readouterr().out
+    assert status == 1
+    assert "UNSTABLE: the velocity envelope grows in DFBC" in out
