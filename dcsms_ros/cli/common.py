@@ -129,6 +129,6 @@ def plot_dir(path: Path) -> Path:
 
 
 __all__ = [
-    "add_config_options", "add_margin_options", "add_output_options", "default_config_path", "find_share_file",
-    "jsonable", "load_cfg", "plot_dir", "print_json", "share_candidates",
+    "add_config_options", "add_margin_options", "add_output_options", "default_config_path",
+    "find_share_file", "jsonable", "load_cfg", "plot_dir", "print_json", "share_candidates",
 ]
