@@ -79,6 +79,9 @@ def markdown(summary: Summary, figures: list[str]) -> str:
               "forces, not the ground, dominate the table's motion."), "",
              _md_analytic(summary), "",
              "## Actuator forces", "", _md_forces(summary), ""]
+    if summary.paper is not None:
+        lines[lines.index("## Vibration criteria (one-third-octave RMS velocity, 1-80 Hz)"):0] = [
+            "## Paper comparison", "", _md_paper(summary), ""]
     if figures:
         lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
     if summary.warnings:
@@ -104,6 +107,19 @@ def _md_table4(s: Summary) -> str:
         cells.append(f"**unstable** ({grow})" if st.get("unstable") else "steady")
         rows.append(f"| {seg['mode']} | " + " | ".join(cells) + " |")
     return "\n".join(rows)
+
+
+def _md_paper(s: Summary) -> str:
+    from dcsms_ros.analysis.paper import CITATION, within
+
+    rows = s.paper or []
+    intro = (f"The mode table against {CITATION} (the three-point TEM, measured); ratio = "
+             f"ours / paper. {within(rows)} of {len(rows)} within +-30 %.")
+    out = [intro, "",
+           "| mode | axis | paper | ours | ratio |", "|---|---|---:|---:|---:|"]
+    out += [f"| {r['mode']} | {r['axis']} | {r['paper']:.3f} | {_fmt(r['ours'], '.3f')} | "
+            f"{_fmt(r['ratio'], '.2f')} |" for r in rows]
+    return "\n".join(out)
 
 
 def _md_vc(s: Summary) -> str:

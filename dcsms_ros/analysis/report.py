@@ -12,6 +12,7 @@ import numpy as np
 
 from dcsms_ros.analysis import estimators as est
 from dcsms_ros.analysis import modetable
+from dcsms_ros.analysis import paper as paper_table
 from dcsms_ros.analysis.criteria import evaluate
 from dcsms_ros.analysis.reader import AXIS_NAMES, BagData, Progress, config_from_yaml, read_bag
 from dcsms_ros.analysis.segments import MIN_SEGMENT_S, SETTLE_S, Segment, align, split_segments
@@ -54,6 +55,8 @@ class Summary:
     config_source: str | None = None
     files: list[str] = field(default_factory=list)
     definition: str = modetable.__doc__ or ""
+    #: rows {mode, axis, paper, ours, ratio} against the paper's Table 4, when compared
+    paper: list[dict[str, Any]] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (no arrays of spectra; those go to the plots)."""
@@ -62,6 +65,7 @@ class Summary:
             "resonance_hz": self.resonance_hz, "config_source": self.config_source,
             "table4_definition": " ".join(self.definition.split()),
             "segments": self.segments, "warnings": self.warnings, "files": self.files,
+            "paper_comparison": self.paper,
         })
 
     def table(self) -> str:
@@ -71,7 +75,8 @@ class Summary:
 
 def analyze(bags: Sequence[str | Path], reference: str = "passive",
             out_dir: str | Path | None = None, config: SystemConfig | None = None,
-            progress: Progress | None = None, settle_s: float = SETTLE_S) -> Summary:
+            progress: Progress | None = None, settle_s: float = SETTLE_S,
+            paper: bool | None = None) -> Summary:
     """Analyse one or more DCSMS bags mode by mode.
 
     Parameters
@@ -88,6 +93,9 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
         Reading progress per bag.
     settle_s : float
         Time dropped after every mode switch (s).
+    paper : bool, optional
+        Compare the mode table with the paper's Table 4 (:mod:`.paper`); default: when the
+        configuration is 6-DOF (the paper's table is the three-point TEM in X, Y, Z).
 
     Raises
     ------
@@ -125,6 +133,11 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
             results.append(r)
     _table4(results, ref_mode.label, summary)
     summary.segments = [r["json"] for r in results]
+    cfg_any = next((c for _, _, c in work if c is not None), None)
+    if paper or (paper is None and cfg_any is not None and cfg_any.plant.dof == 6):
+        ours = {s["mode"]: {a: s["axes"][a].get("normalized") for a in axes}
+                for s in summary.segments}
+        summary.paper = paper_table.comparison(ours, axes)
     if out_dir is not None:
         from dcsms_ros.analysis import output
 

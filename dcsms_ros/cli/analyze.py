@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -29,6 +30,8 @@ def register(subparsers: Any) -> None:
                    help="params YAML overriding the configuration recorded in the bag")
     p.add_argument("--settle", type=float, default=1.0, metavar="S",
                    help="seconds dropped after each mode switch (default 1.0)")
+    p.add_argument("--paper", action="store_true", default=None,
+                   help="compare with the paper's Table 4 (default: for a 6-DOF configuration)")
     p.set_defaults(func=run)
 
 
@@ -57,6 +60,10 @@ class _ProgressBar:
         self.stream.flush()
 
 
+def _num(x: float | None) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x:.3f}"
+
+
 def run(args: argparse.Namespace) -> int:
     """Handler: analyse, print the mode table (or JSON), return 0."""
     from dcsms_ros.analysis.report import analyze, dumps
@@ -64,13 +71,19 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = load_config(args.config) if args.config is not None else None
     summary = analyze(args.bags, reference=args.reference, out_dir=args.out, config=cfg,
-                      progress=_ProgressBar(), settle_s=args.settle)
+                      progress=_ProgressBar(), settle_s=args.settle, paper=args.paper)
     if args.json:
         print(dumps(summary))
         return 0
     res = ", ".join(f"{a}: {f:.2f} Hz" for a, f in summary.resonance_hz.items())
     print(f"reference: {summary.reference} (resonance {res or 'n/a'})")
     print(summary.table())
+    if summary.paper:
+        from dcsms_ros.analysis.paper import within
+
+        print("paper Table 4 (ours / paper): " + "; ".join(
+            f"{r['mode']} {r['axis']} {r['paper']:.3f}/{_num(r['ours'])}" for r in summary.paper)
+            + f"; {within(summary.paper)} of {len(summary.paper)} within +-30 %")
     for seg in summary.segments:
         vc = "; ".join(f"{a}: " + ", ".join(f"{t} {v['best'] or 'none'}"
                                            for t, v in seg["axes"][a]["vc"].items())

@@ -8,9 +8,10 @@ discrete model of the loop as it runs (:mod:`dcsms_ros.core.loop_model`):
   disk margin at least the minimum, every actuator's predicted force RMS at most limit / 4.
   Feedforward is no loop, so the poles and margins of a mode with and without FFC are the same:
   only the distinct sets of feedback loops are analysed;
-* objective ``attenuation``: the mean over the table's axes of ln(Table-4 value of DFBC+FFC),
-  the predicted top-stage band RMS at the Passive resonance relative to Passive
-  (:mod:`dcsms_ros.analysis.predict`);
+* objective ``attenuation``: the largest over the table's axes of ln(Table-4 value of
+  DFBC+FFC), the predicted top-stage band RMS at the Passive resonance relative to Passive
+  (:mod:`dcsms_ros.analysis.predict`), taken smoothly (log-sum-exp, :data:`SOFTMAX`) so that
+  every axis is pushed down, the worst first;
 * objective ``table4``: the sum of squared ln(predicted / target) over the target's entries.
 
 The search is scipy's COBYQA in a box of normalised coordinates (log for gains and corners).
@@ -47,6 +48,8 @@ TUNE_GRID_POINTS = 500
 OBJECTIVES = ("attenuation", "table4")
 #: Band-integration points while tuning.
 TUNE_BAND_POINTS = 201
+#: Sharpness of the smooth maximum over axes of the attenuation objective.
+SOFTMAX = 4.0
 
 
 @dataclass(frozen=True)
@@ -237,7 +240,8 @@ def judge(cfg: SystemConfig, axes: Sequence[str], rows: Sequence[str], objective
         table[label] = {a: float(band_rms(top, f_r[a], TUNE_BAND_POINTS)[j]) / base[a]
                         for j, a in enumerate(axes)}
     if objective == "attenuation":
-        obj = float(np.mean([math.log(table["DFBC+FFC"][a]) for a in axes]))
+        logs = np.array([math.log(table["DFBC+FFC"][a]) for a in axes])
+        obj = float(np.logaddexp.reduce(SOFTMAX * logs) / SOFTMAX)
     else:
         obj = float(sum(math.log(table[m][a] / t) ** 2 for m, row in target.items()
                         for a, t in row.items()))
