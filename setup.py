@@ -29,6 +29,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", sorted(glob("config/*.yaml"))),
+        ("share/" + package_name + "/config/targets", sorted(glob("config/targets/*.yaml"))),
         ("share/" + package_name + "/launch", sorted(glob("launch/*.py"))),
     ],
     install_requires=["setuptools"],

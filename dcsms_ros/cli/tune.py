@@ -41,6 +41,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--target", type=Path, default=None, metavar="FILE",
                    help="YAML mode -> axis -> factor, e.g. 'FBC: {x: 0.243, y: 1.182, "
                    "z: 0.873}' (table4)")
+    p.add_argument("--order", default="", metavar="AXES",
+                   help="axes (e.g. x,z) on which the paper's order FBC > FBC+FFC > DFBC > "
+                   "DFBC+FFC must hold, each at least 1.15 x the next")
     p.add_argument("--corners", action="store_true",
                    help="also tune the feedback high-pass and sensor extension corners")
     p.add_argument("--rotations", action="store_true",
@@ -110,7 +113,8 @@ def run(args: argparse.Namespace) -> int:
     if args.objective == "table4" and target is None:
         raise DcsmsError("--objective table4 needs --target FILE")
     knobs = default_knobs(cfg, corners=args.corners, rotations=args.rotations)
-    problem = Problem(cfg, knobs, args.objective, target, args.min_gm, args.min_pm)
+    order = [a.strip() for a in args.order.split(",") if a.strip()]
+    problem = Problem(cfg, knobs, args.objective, target, args.min_gm, args.min_pm, order)
     say = (lambda *a: print(*a, file=sys.stderr, flush=True)) if args.json else (
         lambda *a: print(*a, flush=True))
     start = problem.evaluate(problem.start())
@@ -120,7 +124,13 @@ def run(args: argparse.Namespace) -> int:
         f"{start.worst_pm_deg:.0f} deg, slacks "
         + ", ".join(f"{k} {v:+.3g}" for k, v in start.slacks.items()))
 
+    shown: list[Any] = [None]
+
     def progress(it: int, ev: Any) -> None:
+        # a line when the best candidate changes, else every tenth iteration
+        if ev is shown[0] and it % 10:
+            return
+        shown[0] = ev
         say(f"  iter {it:4d}  evaluations {problem.evaluations:4d}  objective "
             f"{ev.objective:+.4f}  worst margin {ev.worst_gm_db:5.1f} dB / "
             f"{ev.worst_pm_deg:4.0f} deg  {'feasible' if ev.feasible else 'infeasible'}")

@@ -23,6 +23,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 from numpy.typing import NDArray
 from scipy import optimize
 
@@ -178,10 +179,13 @@ def _mu_upper(m: CArray) -> float:
         d = np.exp(np.concatenate([[0.0], x]))
         return float(np.linalg.norm((d[:, None] * m) / d[None, :], 2))
 
-    res = optimize.minimize(smax, np.zeros(n - 1), method="Nelder-Mead",
-                            options={"xatol": 1e-6, "fatol": 1e-9 * max(top, 1e-300),
-                                     "maxiter": 400 * n})
-    return min(top, float(res.fun))
+    # start from the Osborne scaling that balances |m|'s rows and columns (close to optimal)
+    _, (scale, _) = scipy.linalg.matrix_balance(np.abs(m), permute=False, separate=True)
+    x0 = np.log(scale[0] / scale[1:]) if np.all(scale > 0) else np.zeros(n - 1)
+    res = optimize.minimize(smax, x0, method="Nelder-Mead",
+                            options={"xatol": 1e-5, "fatol": 1e-7 * max(top, 1e-300),
+                                     "maxiter": 200 * n})
+    return min(top, smax(x0), float(res.fun))
 
 
 def disk_from_alpha(alpha: float) -> tuple[float, float]:

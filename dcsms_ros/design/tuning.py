@@ -12,7 +12,9 @@ discrete model of the loop as it runs (:mod:`dcsms_ros.core.loop_model`):
   DFBC+FFC), the predicted top-stage band RMS at the Passive resonance relative to Passive
   (:mod:`dcsms_ros.analysis.predict`), taken smoothly (log-sum-exp, :data:`SOFTMAX`) so that
   every axis is pushed down, the worst first;
-* objective ``table4``: the sum of squared ln(predicted / target) over the target's entries.
+* objective ``table4``: the sum of squared ln(predicted / target) over the target's entries;
+* optionally, the paper's ordering on some axes: FBC > FBC+FFC > DFBC > DFBC+FFC, each at
+  least :data:`ORDER_GAP` times the next (so that the order survives a simulation's scatter).
 
 The search is scipy's COBYQA in a box of normalised coordinates (log for gains and corners).
 An infeasible start is fine: COBYQA works towards feasibility first.
@@ -20,6 +22,7 @@ An infeasible start is fine: COBYQA works towards feasibility first.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -50,6 +53,9 @@ OBJECTIVES = ("attenuation", "table4")
 TUNE_BAND_POINTS = 201
 #: Sharpness of the smooth maximum over axes of the attenuation objective.
 SOFTMAX = 4.0
+#: The paper's Table-4 order, and the least ratio between neighbours when it is required.
+ORDER = ("FBC", "FBC+FFC", "DFBC", "DFBC+FFC")
+ORDER_GAP = 1.15
 
 
 @dataclass(frozen=True)
@@ -168,11 +174,14 @@ class Problem:
         Required for ``table4``.
     min_gm_db, min_pm_deg : float
         Minimum margins (dB, deg).
+    order : sequence of str
+        Axes on which the paper's mode order must hold (:data:`ORDER`, :data:`ORDER_GAP`).
     """
 
     def __init__(self, cfg: SystemConfig, knobs: Sequence[Knob], objective: str,
                  target: Mapping[str, Mapping[str, float]] | None = None,
-                 min_gm_db: float = MIN_GM_DB, min_pm_deg: float = MIN_PM_DEG) -> None:
+                 min_gm_db: float = MIN_GM_DB, min_pm_deg: float = MIN_PM_DEG,
+                 order: Sequence[str] = ()) -> None:
         if objective not in OBJECTIVES:
             raise DcsmsError(f"objective {objective!r}: expected one of {', '.join(OBJECTIVES)}")
         if objective == "table4" and not target:
@@ -182,9 +191,16 @@ class Problem:
         self.min_gm, self.min_pm = min_gm_db, min_pm_deg
         self.axes = table_axes(cfg)
         self.grid = frequency_grid(cfg.plant.rate_hz, TUNE_GRID_POINTS)
-        self._cache: tuple[tuple[float, ...], Evaluation] | None = None
+        # COBYQA re-reads the constraints of earlier points (merit updates): keep them all
+        self._cache: dict[tuple[float, ...], Evaluation] = {}
         self.evaluations = 0
+        bad = [a for a in order if a not in self.axes]
+        if bad:
+            raise DcsmsError(f"order axes {', '.join(bad)}: the table has {', '.join(self.axes)}")
+        self.order = list(order)
         self.rows = (["DFBC+FFC"] if objective == "attenuation" else list(self.target))
+        if self.order:
+            self.rows = list(dict.fromkeys([*self.rows, *ORDER]))
 
     def start(self) -> Array:
         """The starting configuration's knob values in unit coordinates."""
@@ -198,18 +214,17 @@ class Problem:
     def evaluate(self, u: Sequence[float] | Array) -> Evaluation:
         """Judge the candidate at ``u`` (cached for repeated calls)."""
         key = tuple(float(x) for x in u)
-        if self._cache is not None and self._cache[0] == key:
-            return self._cache[1]
-        self.evaluations += 1
-        ev = judge(self.config(key), self.axes, self.rows, self.objective, self.target,
-                   self.min_gm, self.min_pm, self.grid)
-        self._cache = (key, ev)
-        return ev
+        if key not in self._cache:
+            self.evaluations += 1
+            self._cache[key] = judge(self.config(key), self.axes, self.rows, self.objective,
+                                     self.target, self.min_gm, self.min_pm, self.grid,
+                                     self.order)
+        return self._cache[key]
 
 
 def judge(cfg: SystemConfig, axes: Sequence[str], rows: Sequence[str], objective: str,
           target: Mapping[str, Mapping[str, float]], min_gm: float, min_pm: float,
-          grid: Array | None = None) -> Evaluation:
+          grid: Array | None = None, order: Sequence[str] = ()) -> Evaluation:
     """Objective, constraint slacks and predicted Table-4 rows of one configuration."""
     slack_stab, gms, pms = math.inf, [math.inf], [math.inf]
     for mode in _loop_sets(cfg).values():
@@ -239,6 +254,9 @@ def judge(cfg: SystemConfig, axes: Sequence[str], rows: Sequence[str], objective
         top = TopVelocity(cfg, next(m for m in ALL_MODES if m.label == label))
         table[label] = {a: float(band_rms(top, f_r[a], TUNE_BAND_POINTS)[j]) / base[a]
                         for j, a in enumerate(axes)}
+    for a in order:
+        slacks[f"order {a}"] = min(math.log(table[hi][a] / table[lo][a]) - math.log(ORDER_GAP)
+                                   for hi, lo in itertools.pairwise(ORDER))
     if objective == "attenuation":
         logs = np.array([math.log(table["DFBC+FFC"][a]) for a in axes])
         obj = float(np.logaddexp.reduce(SOFTMAX * logs) / SOFTMAX)
@@ -303,5 +321,5 @@ def tune(problem: Problem, max_evaluations: int = 300,
     return Result(cfg, ev, values, problem.evaluations, iterations[0])
 
 
-__all__ = ["OBJECTIVES", "Evaluation", "Knob", "Problem", "Result", "apply", "default_knobs",
-           "judge", "tune"]
+__all__ = ["OBJECTIVES", "ORDER", "ORDER_GAP", "Evaluation", "Knob", "Problem", "Result",
+           "apply", "default_knobs", "judge", "tune"]
