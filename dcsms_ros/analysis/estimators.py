@@ -85,7 +85,8 @@ def h1_random_error(coherence: np.ndarray, averages: int) -> np.ndarray:
         return np.sqrt(1.0 - g2) / (np.sqrt(g2) * np.sqrt(2.0 * max(averages, 1)))
 
 
-def _averages(n: int, nperseg: int) -> int:
+def welch_averages(n: int, nperseg: int) -> int:
+    """Half-overlapping segments of ``nperseg`` samples in a record of ``n`` samples."""
     return max((n - nperseg) // (nperseg // 2) + 1, 0)
 
 
@@ -161,7 +162,8 @@ def transfer_h1(x: np.ndarray, y: np.ndarray, fs: float,
     with np.errstate(divide="ignore", invalid="ignore"):
         h = np.where(sxx > 0, sxy / sxx, 0.0)
         coh = np.where(sxx * syy > 0, np.abs(sxy) ** 2 / (sxx * syy), 0.0)
-    return TransferEstimate(f, h, np.clip(coh.real, 0.0, 1.0), _averages(np.shape(x)[0], nper))
+    return TransferEstimate(f, h, np.clip(coh.real, 0.0, 1.0),
+                            welch_averages(np.shape(x)[0], nper))
 
 
 def psd(x: np.ndarray, fs: float, nperseg: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -278,5 +280,5 @@ def band_rms_around(f: np.ndarray, p: np.ndarray, centre_hz: float,
 __all__ = [
     "MIN_AVERAGES", "NOMINAL_CENTRES", "Peak", "TransferEstimate", "asd", "band_rms",
     "band_rms_around", "choose_nperseg", "find_resonances", "psd", "third_octave_bands",
-    "transfer_h1", "welch_sums",
+    "transfer_h1", "welch_averages", "welch_sums",
 ]

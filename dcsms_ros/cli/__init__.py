@@ -17,8 +17,8 @@ from dcsms_ros import __version__
 from dcsms_ros.errors import DcsmsError
 
 #: Sub-command modules, in the order ``dcsms --help`` lists them.
-SUBCOMMANDS: tuple[str, ...] = ("model", "sim", "up", "mode", "record", "analyze", "demo",
-                                "params")
+SUBCOMMANDS: tuple[str, ...] = ("model", "sim", "up", "mode", "record", "analyze", "fit",
+                                "export", "demo", "params")
 
 #: Exit status of a usage or configuration error (the argparse convention).
 EXIT_USAGE = 2

@@ -14,7 +14,9 @@ Specification text (``dcsms sim --excite``, the excitation node's ``spec`` param
 
 ``STAGE`` is ``stage1`` … ``stageN``; ``AXIS`` is ``z`` in 1-DOF, one of ``x y z rx ry rz`` in
 6-DOF. ``LO-HI`` defaults to :data:`DEFAULT_BAND_HZ`. ``stage1.z:white:5`` is 5 N RMS;
-``stage2.x:sweep:20:0.5-50`` is a 20 N sweep from 0.5 to 50 Hz.
+``stage2.x:sweep:20:0.5-50`` is a 20 N sweep from 0.5 to 50 Hz. A suffix ``@T0-T1`` (s) keeps
+the excitation on only from T0 to T1 of the run (a sweep or stepped sine then starts at T0 and
+its default period is T1 - T0), e.g. ``stage1.z:white:5@10-40``.
 
 The signal of sample k depends only on the specifications, the rate, the run length and the seed
 (:class:`Excitation` serves the same values per sample or per block), so the excitation node and
@@ -80,6 +82,8 @@ class ExcitationSpec:
         Sweep: duration of one sweep, s (0: the whole run).
     steps : int
         Stepped: number of frequencies.
+    window_s : (float, float) or None
+        On only from ``window_s[0]`` to ``window_s[1]`` of the run, s (None: always).
     """
 
     stage: int
@@ -89,6 +93,7 @@ class ExcitationSpec:
     band_hz: tuple[float, float] = DEFAULT_BAND_HZ
     period_s: float = 0.0
     steps: int = DEFAULT_STEPS
+    window_s: tuple[float, float] | None = None
 
     @property
     def stage_name(self) -> str:
@@ -103,6 +108,8 @@ class ExcitationSpec:
             extra = f":{self.period_s:g}"
         elif self.kind == "stepped":
             extra = f":{self.steps}"
+        if self.window_s is not None:
+            extra += f"@{self.window_s[0]:g}-{self.window_s[1]:g}"
         return f"{self.stage_name}.{self.axis}:{self.kind}:{self.amplitude:g}:{lo:g}-{hi:g}{extra}"
 
     @property
@@ -129,10 +136,21 @@ def parse_spec(text: str) -> ExcitationSpec:
     ConfigError
         A malformed specification (the message shows the expected form).
     """
-    m = _SPEC.match(text)
-    form = "expected STAGE.AXIS:KIND:AMPLITUDE[:LO-HI[:T or N]], e.g. stage1.z:white:5"
+    body, at, window = text.partition("@")
+    m = _SPEC.match(body)
+    form = ("expected STAGE.AXIS:KIND:AMPLITUDE[:LO-HI[:T or N]][@T0-T1], e.g. "
+            "stage1.z:white:5")
     if m is None:
         raise ConfigError(f"--excite {text!r}: {form}")
+    win: tuple[float, float] | None = None
+    if at:
+        parts = window.split("-")
+        if len(parts) != 2:
+            raise ConfigError(f"--excite {text!r}: window {window!r}: expected @T0-T1 in s")
+        t0, t1 = (_number(p, "window time", text) for p in parts)
+        if not 0 <= t0 < t1:
+            raise ConfigError(f"--excite {text!r}: window {window!r}: need 0 <= T0 < T1 (s)")
+        win = (t0, t1)
     stage, axis, kind, amp, band, extra = m.groups()
     if axis not in AXES6:
         raise ConfigError(f"--excite {text!r}: unknown axis {axis!r}; one of {' '.join(AXES6)}")
@@ -161,7 +179,7 @@ def parse_spec(text: str) -> ExcitationSpec:
             if not extra.isdigit() or not 1 <= int(extra) <= 1000:
                 raise ConfigError(f"--excite {text!r}: steps {extra!r}: an integer 1..1000")
             steps = int(extra)
-    return ExcitationSpec(int(stage[5:]), axis, kind, amplitude, (lo, hi), period, steps)
+    return ExcitationSpec(int(stage[5:]), axis, kind, amplitude, (lo, hi), period, steps, win)
 
 
 def axis_index(cfg: SystemConfig, axis: str) -> int:
@@ -263,7 +281,8 @@ class Excitation:
 
     def _tone(self, s: ExcitationSpec, t: Array) -> Array:
         lo, hi = s.band_hz
-        period = s.period_s if s.period_s > 0 else self._run
+        run = self._run if s.window_s is None else s.window_s[1] - s.window_s[0]
+        period = s.period_s if s.period_s > 0 else run
         if s.kind == "sweep":
             tau = np.mod(t, period)
             rate = math.log(hi / lo) / period
@@ -281,11 +300,14 @@ class Excitation:
         out = np.zeros((n, self.num_stages, self.dof))
         t = (self.k + np.arange(n)) / self.fs
         for s, noise in zip(self.specs, self._noise, strict=True):
+            t_on = t if s.window_s is None else t - s.window_s[0]
             if noise is not None:
                 lim = WHITE_PEAK_SIGMA * s.amplitude
-                v = np.clip(noise.block(n)[:, 0], -lim, lim)
+                v = np.clip(noise.block(n)[:, 0], -lim, lim)  # drawn on or off: one stream
             else:
-                v = self._tone(s, t)
+                v = self._tone(s, t_on)
+            if s.window_s is not None:
+                v = np.where((t_on >= 0) & (t < s.window_s[1]), v, 0.0)
             out[:, s.stage - 1, axis_index_dof(self.dof, s.axis)] = v
         self.k += n
         return out

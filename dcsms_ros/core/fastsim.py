@@ -125,6 +125,7 @@ class FastLoop:
         """The objects' inputs for the next ``m`` samples; ``excite`` (m, N, dof) is the
         excitation of those samples (None: the run has none)."""
         sim = self.sim
+        assert sim.disturbances is not None
         if self._first:  # sample 0 was drawn when the simulator was built
             self._first = False
             g, w = sim.disturbances.block(m - 1)

@@ -144,7 +144,7 @@ def loop_model(cfg: SystemConfig, mode: Mode, breaks: Sequence[Break] = (),
     """
     if plant is not None:
         check_plant(cfg, plant)
-    sim = PlantSimulator(plant or cfg, seed=0)
+    sim = PlantSimulator(plant or cfg, seed=0, disturbances=False)
     dec = Decoupler(cfg)
     n, dof = cfg.plant.num_stages, cfg.plant.dof
     on = enabled_controllers(mode, n)

@@ -76,14 +76,19 @@ class PlantSimulator:
         Recorded ground velocity (m/s) at the control rate, replayed instead of white noise.
     table : ndarray, shape (K, N, dof), optional
         Wrenches added to the table forces of the first K samples (N, N*m).
+    disturbances : bool
+        False: no ground motion and no table forces at all (and none drawn: a loop model
+        only needs the plant's matrices, cheaply).
     """
 
     def __init__(self, cfg: SystemConfig, seed: int | None = None,
-                 ground: Array | None = None, table: Array | None = None) -> None:
+                 ground: Array | None = None, table: Array | None = None,
+                 disturbances: bool = True) -> None:
         self.cfg = cfg
         seed = cfg.disturbance.seed if seed is None else seed
         self.plant = DiscretePlant(discretize(plant_state_space(cfg), cfg.plant.dt))
-        self.disturbances = Disturbances(cfg, seed=seed, ground=ground, table=table)
+        self.disturbances = (Disturbances(cfg, seed=seed, ground=ground, table=table)
+                             if disturbances else None)
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_SENSOR_STREAM,)))
         self.geophones = GeophoneArray(cfg, rng)
         self.channels = channel_layout(cfg)
@@ -118,7 +123,11 @@ class PlantSimulator:
         return self._chan
 
     def _draw(self) -> None:
-        self._ground, self._dist = self.disturbances.next()
+        if self.disturbances is None:
+            self._ground = np.zeros(self.cfg.plant.dof)
+            self._dist = np.zeros((self.cfg.plant.num_stages, self.cfg.plant.dof))
+        else:
+            self._ground, self._dist = self.disturbances.next()
         self._raw = None
 
     def truth(self) -> Array:

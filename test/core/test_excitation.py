@@ -37,6 +37,7 @@ def table1():
     ("stage2.x:sweep:20:0.5-50", ("stage2", "x", "sweep", 20.0, (0.5, 50.0))),
     ("stage1.z:sweep:3:1-80:10", ("stage1", "z", "sweep", 3.0, (1.0, 80.0))),
     (" stage1.rz : stepped : 2 : 1-30 : 7 ", ("stage1", "rz", "stepped", 2.0, (1.0, 30.0))),
+    ("stage1.z:white:5@10-40", ("stage1", "z", "white", 5.0, (0.5, 100.0))),
 ])
 def test_parse_spec(text, expect):
     s = parse_spec(text)
@@ -54,6 +55,8 @@ def test_parse_spec(text, expect):
     ("stage1.z:white:5:1-50:3", "no third field"),
     ("stage1.z:stepped:5:1-50:x", "integer"),
     ("stage1.z:sweep:5:1-50:0", "period must be > 0"),
+    ("stage1.z:white:5@10", "expected @T0-T1"),
+    ("stage1.z:white:5@10-5", "0 <= T0 < T1"),
 ])
 def test_parse_spec_refuses(text, match):
     with pytest.raises(ConfigError, match=match):
@@ -115,6 +118,18 @@ def test_sweep_and_stepped_frequencies(table1):
         seg = stepped[i * 10_000:(i + 1) * 10_000]
         f, p = signal.periodogram(seg, FS)
         assert f[np.argmax(p)] == pytest.approx(f0, abs=0.25)
+
+
+def test_window_keeps_the_excitation_on_from_t0_to_t1(table1):
+    """@T0-T1: zero outside, the same white noise inside as without a window; a windowed sweep
+    starts at T0 and sweeps over T1 - T0."""
+    full = excitation_signal(table1, [parse_spec("stage1.z:white:5")], 8000, 2)
+    win = excitation_signal(table1, [parse_spec("stage1.z:white:5@1-3")], 8000, 2)
+    np.testing.assert_array_equal(win[2000:6000], full[2000:6000])
+    assert not win[:2000].any() and not win[6000:].any()
+    sweep = excitation_signal(table1, [parse_spec("stage1.z:sweep:4:1-40@1-3")], 8000, 2)
+    plain = excitation_signal(table1, [parse_spec("stage1.z:sweep:4:1-40:2")], 4000, 2)
+    np.testing.assert_allclose(sweep[2000:6000], plain, atol=1e-12)
 
 
 def _excite(cfg, text, seconds, seed=5):
