@@ -30,6 +30,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", sorted(glob("config/*.yaml"))),
         ("share/" + package_name + "/launch", sorted(glob("launch/*.py"))),
+        ("share/" + package_name + "/layouts", sorted(glob("layouts/*"))),
     ],
     install_requires=["setuptools"],
     # numba compiles the batch engine's fast path; without it the engine steps the objects

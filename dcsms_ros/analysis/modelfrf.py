@@ -47,9 +47,9 @@ MODAL_RTOL = 1e-7
 
 class FastResponse:
     """``c (zI - a)^-1 b + d`` at many frequencies: modal form ``a = V L V^-1`` evaluated for
-    all frequencies at once, checked at a few frequencies against the Schur solve of
-    :class:`~dcsms_ros.core.loop_model.Response`, which is used instead when they differ
-    (near-defective matrices).
+    all frequencies at once, checked at a few frequencies against a direct solve; when they
+    differ (a near-defective matrix) the Schur solve of
+    :class:`~dcsms_ros.core.loop_model.Response` is used instead.
 
     Parameters
     ----------
@@ -72,28 +72,39 @@ class FastResponse:
         if self._modal is not None:
             probe = np.array([0.7, 3.7, 9.4, 37.0, 150.0])
             probe = probe[probe < 0.5 / self._dt]
-            exact = Response(model)(probe)
+            eye = np.eye(model.a.shape[0])
+            exact = np.array([model.c @ np.linalg.solve(np.exp(2j * np.pi * f * self._dt) * eye
+                                                        - model.a, model.b) + model.d
+                              for f in probe])
             got = self._eval_modal(probe)
             scale = np.max(np.abs(exact)) or 1.0
             if np.max(np.abs(got - exact)) > MODAL_RTOL * scale:
                 self._modal = None
         self._schur: Response | None = None if self._modal is not None else Response(model)
 
-    def _eval_modal(self, f: Array) -> CArray:
+    def _eval_modal(self, f: Array, rows: Sequence[int] | None = None,
+                    cols: Sequence[int] | None = None) -> CArray:
         assert self._modal is not None
         lam, cb, vb = self._modal
+        d = self._d
+        if rows is not None:
+            cb, d = cb[list(rows)], d[list(rows)]
+        if cols is not None:
+            vb, d = vb[:, list(cols)], d[:, list(cols)]
         z = np.exp(2j * np.pi * f * self._dt)
         inv = 1.0 / (z[:, None] - lam[None, :])
-        return np.asarray(np.einsum("oi,fi,ij->foj", cb, inv, vb) + self._d,
-                          dtype=np.complex128)
+        return np.asarray(np.einsum("oi,fi,ij->foj", cb, inv, vb) + d, dtype=np.complex128)
 
-    def __call__(self, f_hz: Sequence[float] | Array) -> CArray:
-        """Shape (F, n_outputs, n_inputs)."""
+    def __call__(self, f_hz: Sequence[float] | Array, rows: Sequence[int] | None = None,
+                 cols: Sequence[int] | None = None) -> CArray:
+        """Shape (F, n_outputs, n_inputs), or only the outputs ``rows`` and inputs ``cols``."""
         f = np.asarray(f_hz, dtype=np.float64).ravel()
         if self._modal is not None:
-            return self._eval_modal(f)
+            return self._eval_modal(f, rows, cols)
         assert self._schur is not None
-        return self._schur(f)
+        h = self._schur(f)
+        h = h if rows is None else h[:, list(rows)]
+        return h if cols is None else h[:, :, list(cols)]
 
 
 def _axis_index(dof: int, axis: str) -> int:
@@ -126,15 +137,12 @@ class LoopFrf:
         self.truth = truth
         self.gain = gain
         self.model = loop_model(cfg, mode, plant=plant)
-        self._cache: dict[tuple[str, int], FastResponse] = {}
-
-    def _response(self, group: str, column: int) -> FastResponse:
-        key = (group, column)
-        if key not in self._cache:
-            sl = self.model.inputs[group]
-            out = self.model.outputs["stage" if self.truth else "velocity"]
-            self._cache[key] = FastResponse(self.model.select([sl.start + column], out))
-        return self._cache[key]
+        # one modal decomposition serves every response: inputs ground then excite
+        g, e = self.model.inputs["ground"], self.model.inputs["excite"]
+        self._cols = {"ground": 0, "excite": g.stop - g.start}
+        out = self.model.outputs["stage" if self.truth else "velocity"]
+        self._resp = FastResponse(self.model.select([*range(g.start, g.stop),
+                                                     *range(e.start, e.stop)], out))
 
     def _rows(self, axis: str, stages: Sequence[int]) -> list[int]:
         """Output rows of ``stages`` (1-based; 0 = ground, velocity outputs only) on ``axis``."""
@@ -145,18 +153,20 @@ class LoopFrf:
     def mobility(self, f_hz: Array, stage: int, axis: str, stages: Sequence[int]) -> CArray:
         """Excitation on ``stage`` (1-based) along ``axis`` -> velocity of each of ``stages``
         along ``axis``, (m/s)/N, shape (F, len(stages))."""
-        col = (stage - 1) * self.dof + _axis_index(self.dof, axis)
-        h = self._response("excite", col)(f_hz)[:, self._rows(axis, stages), 0]
+        col = self._cols["excite"] + (stage - 1) * self.dof + _axis_index(self.dof, axis)
+        h = self._resp(f_hz, self._rows(axis, stages), [col])[:, :, 0]
         return np.asarray(self.gain * h, dtype=np.complex128)
 
     def transmissibility(self, f_hz: Array, axis: str, stages: Sequence[int]) -> CArray:
         """Velocity of each of ``stages`` over the ground velocity along ``axis`` for the ground
         input, shape (F, len(stages))."""
-        h = self._response("ground", _axis_index(self.dof, axis))(f_hz)[:, :, 0]
-        num = h[:, self._rows(axis, stages)]
+        col = self._cols["ground"] + _axis_index(self.dof, axis)
+        rows = self._rows(axis, stages) + ([] if self.truth else self._rows(axis, [0]))
+        h = self._resp(f_hz, rows, [col])[:, :, 0]
+        num = h[:, :len(stages)]
         if self.truth:
             return np.asarray(num, dtype=np.complex128)
-        den = h[:, self._rows(axis, [0])]
+        den = h[:, len(stages):]
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.asarray(num / den, dtype=np.complex128)
 

@@ -27,6 +27,16 @@ def write_all(out: Path, summary: Summary, results: list[dict[str, Any]],
     files = []
     for a in summary.axes:
         files += _figures(out, a, results)
+    for i, axis, tf in summary.timefreq:
+        tag = f"_{i + 1}" if len(summary.bags) > 1 else ""
+        name = Path(summary.bags[i]).name
+        files.append(plots.plot_spectrogram(
+            out / f"spectrogram{tag}_{axis}.png",
+            f"Top-stage velocity, axis {axis}, {name} (dashed: mode switches; shaded: excited)",
+            tf))
+        files.append(plots.plot_blrms(
+            out / f"blrms{tag}_{axis}.png",
+            f"Band-limited RMS of the top-stage velocity, axis {axis}, {name}", tf))
     if export is not None:
         from dcsms_ros.analysis.tables import write_spectra
 

@@ -122,6 +122,55 @@ def _two_panels(ax1: Any, ax2: Any, ylabel: str, title: str, lower: str,
     ax1.set_xlim(F_LO, F_HI)
 
 
+def _marks(ax: Any, marks: list[tuple[float, str]], spans: list[tuple[float, float]],
+           label_y: float | None = None) -> None:
+    """Mode switches as labelled vertical lines, excited spans shaded."""
+    for t0, t1 in spans:
+        ax.axvspan(t0, t1, color="tab:orange", alpha=0.12, lw=0)
+    for t, label in marks:
+        ax.axvline(t, color="k", lw=0.8, ls="--")
+        if label_y is not None:
+            ax.text(t, label_y, f" {label}", rotation=90, va="top", ha="left", fontsize=7)
+
+
+def plot_spectrogram(path: Path, title: str, tf: Any) -> Path:
+    """Spectrogram (ASD, dB re 1 m/s/sqrt(Hz)) of a :class:`~.timefreq.TimeFrequency`, log
+    frequency 0.5-100 Hz, mode switches marked and excited spans shaded."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(10, 5))
+    sel = (tf.f_hz >= F_LO) & (tf.f_hz <= F_HI)
+    db = 10 * np.log10(np.maximum(tf.psd[sel].astype(np.float64), 1e-300))
+    finite = db[np.isfinite(db) & (db > -290)]
+    lo, hi = (np.percentile(finite, [2, 99.8]) if finite.size else (-200.0, -100.0))
+    mesh = ax.pcolormesh(tf.t_s, tf.f_hz[sel], db, shading="nearest", cmap="viridis",
+                         vmin=lo, vmax=hi)
+    ax.set_yscale("log")
+    ax.set_ylim(F_LO, F_HI)
+    _marks(ax, tf.marks, tf.spans, F_HI * 0.9)
+    ax.set_xlabel("time (s from the start of the bag)")
+    ax.set_ylabel("frequency (Hz)")
+    ax.set_title(title, fontsize=10)
+    fig.colorbar(mesh, ax=ax, label="velocity ASD (dB re 1 m/s/sqrt(Hz))")
+    return _save(plt, fig, path)
+
+
+def plot_blrms(path: Path, title: str, tf: Any) -> Path:
+    """Band-limited RMS trends (m/s) of a :class:`~.timefreq.TimeFrequency`, one line per band,
+    mode switches marked and excited spans shaded."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    for (lo, hi), y in zip(tf.bands, tf.blrms, strict=True):
+        ax.semilogy(tf.t_s, y * 1e6, label=f"{lo:g}-{hi:g} Hz")
+    top = float(np.nanmax(tf.blrms)) * 1e6 if tf.blrms.size else 1.0
+    _marks(ax, tf.marks, tf.spans, top * 1.5)
+    ax.set_xlabel("time (s from the start of the bag)")
+    ax.set_ylabel("band RMS velocity (um/s)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    return _save(plt, fig, path)
+
+
 def plot_asd(path: Path, axis: str, curves: list[dict[str, Any]]) -> Path:
     """ASD (m/s/sqrt(Hz)) of the last stage per mode; ``curves``: label, f, asd."""
     plt = _pyplot()
@@ -165,5 +214,5 @@ def _save(plt: Any, fig: Any, path: Path) -> Path:
     return path
 
 
-__all__ = ["plot_asd", "plot_fit", "plot_frf", "plot_mobility", "plot_third_octave",
-           "plot_transmissibility"]
+__all__ = ["plot_asd", "plot_blrms", "plot_fit", "plot_frf", "plot_mobility",
+           "plot_spectrogram", "plot_third_octave", "plot_transmissibility"]

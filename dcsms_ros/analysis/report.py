@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from dcsms_ros.analysis import estimators as est
-from dcsms_ros.analysis import frf, modetable
+from dcsms_ros.analysis import frf, modetable, timefreq
 from dcsms_ros.analysis.criteria import evaluate
 from dcsms_ros.analysis.modelfrf import LoopFrf
 from dcsms_ros.analysis.reader import AXIS_NAMES, BagData, Progress, config_from_yaml, read_bag
@@ -25,6 +25,7 @@ from dcsms_ros.analysis.segments import (
 )
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import parse_mode
+from dcsms_ros.errors import DcsmsError
 from dcsms_ros.jsonutil import jsonable
 
 #: An applied force within this fraction of its limit counts as saturated.
@@ -57,12 +58,16 @@ class Summary:
     config_source: str | None = None
     files: list[str] = field(default_factory=list)
     definition: str = modetable.__doc__ or ""
+    blrms_bands_hz: list[list[float]] = field(default_factory=list)
+    #: (bag index, axis, TimeFrequency) of the top stage per bag and axis, for the figures
+    timefreq: list[tuple[int, str, timefreq.TimeFrequency]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (no arrays of spectra; those go to the plots)."""
         return jsonable({
             "bags": self.bags, "reference": self.reference, "axes": self.axes,
             "resonance_hz": self.resonance_hz, "config_source": self.config_source,
+            "blrms_bands_hz": self.blrms_bands_hz,
             "table4_definition": " ".join(self.definition.split()),
             "segments": self.segments, "warnings": self.warnings, "files": self.files,
         })
@@ -77,7 +82,8 @@ class Summary:
 def analyze(bags: Sequence[str | Path], reference: str = "passive",
             out_dir: str | Path | None = None, config: SystemConfig | None = None,
             progress: Progress | None = None, settle_s: float = SETTLE_S,
-            export: str | None = None) -> Summary:
+            export: str | None = None,
+            blrms_bands: Sequence[tuple[float, float]] = timefreq.DEFAULT_BANDS) -> Summary:
     """Analyse one or more DCSMS bags mode by mode.
 
     Parameters
@@ -97,6 +103,8 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
     export : str, optional
         Also write every segment's spectra as ``npz``, ``csv`` or ``mat`` tables into
         ``out_dir`` (:mod:`.tables`).
+    blrms_bands : sequence of (lo, hi)
+        Bands (Hz) of the band-limited RMS trends and of each segment's ``blrms_mps``.
 
     Raises
     ------
@@ -127,7 +135,7 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
             work.append((data, seg, cfg))
     axes = _axes(work)
     summary = Summary([str(b) for b in bags], ref_mode.label, axes, warnings=warnings,
-                      config_source=cfg_source)
+                      config_source=cfg_source, blrms_bands_hz=[list(b) for b in blrms_bands])
     results = []
     models: dict[Any, LoopFrf | None] = {}
     for data, seg, cfg in work:
@@ -137,6 +145,7 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
     _table4(results, ref_mode.label, summary)
     summary.segments = [r["json"] for r in results]
     if out_dir is not None:
+        summary.timefreq = _timefreq(work, axes, blrms_bands, summary)
         from dcsms_ros.analysis import output
 
         output.write_all(Path(out_dir), summary, results, export)
@@ -205,6 +214,8 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
             ax["tf_peaks_hz"] = [p.f_hz for p in peaks]
         ax["asd_peaks_hz"] = [p.f_hz for p in est.find_resonances(f, np.sqrt(p_top), 6.0,
                                                                   max_peaks=3)]
+        ax["blrms_mps"] = est.band_rms(f, p_top, np.array(
+            [[np.sqrt(lo * hi), lo, hi] for lo, hi in summary.blrms_bands_hz]))
         ax["third_octave_centres_hz"] = bands[:, 0]
         ax["third_octave_rms_mps"] = {}
         ax["vc"] = {}
@@ -228,6 +239,38 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
                      "psd_bodies": psds}
     js["forces"] = _forces(data, seg, cfg)
     return {"json": js, "arrays": arrays, "top": top, "aligned": al}
+
+
+def _timefreq(work: list[tuple[BagData, Segment, SystemConfig | None]], axes: list[str],
+              bands: Sequence[tuple[float, float]], summary: Summary
+              ) -> list[tuple[int, str, timefreq.TimeFrequency]]:
+    """Spectrogram and BLRMS of each bag's top stage per axis over the whole bag, with the
+    mode switches and the excited segments (s from the bag's first sample)."""
+    out: list[tuple[int, str, timefreq.TimeFrequency]] = []
+    bags: list[BagData] = []
+    for data, _, _ in work:
+        if all(d is not data for d in bags):
+            bags.append(data)
+    for i, data in enumerate(bags):
+        top = max((b for b in data.bodies if b != "ground"), key=lambda s: int(s[5:]))
+        series = data.bodies[top]
+        st = series.stamp_ns
+        if st.size < 64:
+            continue
+        t0 = int(st[0])
+        fs = 1e9 / float(np.median(np.diff(st)))
+        marks = [((ev.stamp_ns - t0) * 1e-9, ev.label) for ev in data.modes]
+        spans = [((seg.t0_ns - t0) * 1e-9, (seg.t1_ns - t0) * 1e-9)
+                 for d, seg, _ in work if d is data and seg.excited]
+        for a in axes:
+            try:
+                tf = timefreq.compute(series.values[:, AXIS_NAMES.index(a)], fs, bands)
+            except DcsmsError as exc:
+                summary.warnings.append(f"{data.path}: no time-frequency view: {exc}")
+                break
+            tf.marks, tf.spans = marks, spans
+            out.append((i, a, tf))
+    return out
 
 
 def _excited_stage(data: BagData) -> int:

@@ -33,6 +33,9 @@ def register(subparsers: Any) -> None:
                    help="also write every segment's spectra (frequency axis, complex H1 and "
                    "coherence, ASDs, one-third-octave RMS) into --out DIR as npz, csv or mat "
                    "tables")
+    p.add_argument("--blrms", default="1-3,3-10,10-30", metavar="BANDS",
+                   help="bands (Hz) of the band-limited RMS trends in the report and of each "
+                   "segment's blrms_mps (default 1-3,3-10,10-30)")
     p.add_argument("--settle", type=float, default=1.0, metavar="S",
                    help="seconds dropped after each mode switch (default 1.0)")
     p.set_defaults(func=run)
@@ -83,13 +86,16 @@ def _estimates(ests: dict[str, Any]) -> str:
 def run(args: argparse.Namespace) -> int:
     """Handler: analyse, print the mode table (or JSON), return 0."""
     from dcsms_ros.analysis.report import analyze, dumps
+    from dcsms_ros.analysis.timefreq import parse_bands
     from dcsms_ros.core.config import load_config
 
     if args.export is not None and args.out is None:
         raise DcsmsError("--export needs --out DIR (the tables are written there)")
+    bands = parse_bands(args.blrms)
     cfg = load_config(args.config) if args.config is not None else None
     summary = analyze(args.bags, reference=args.reference, out_dir=args.out, config=cfg,
-                      progress=_ProgressBar(), settle_s=args.settle, export=args.export)
+                      progress=_ProgressBar(), settle_s=args.settle, export=args.export,
+                      blrms_bands=bands)
     if args.json:
         print(dumps(summary))
         return 0

@@ -156,3 +156,34 @@ def test_geophone_dynamics_from_the_mobility(tmp_path: Path) -> None:
     np.testing.assert_allclose(fit.value[:2], [4.0, 0.5], rtol=0.03)
     assert fit.value[2] == pytest.approx(988.8, rel=0.03)
     assert fit.value[3] == pytest.approx(1960.0, rel=0.10)
+
+
+def test_sixdof_suspension_per_axis(tmp_path: Path) -> None:
+    """6-DOF (the TEM preset): the stage-1 mounts 10 % softer and 30 % more damped along x;
+    a 20 N RMS excitation along x on stage 1 identifies k1x and c1x (each mount's x value
+    scaled alike)."""
+    cfg = load_config(default_config_path().parent / "tem_three_point.yaml")
+    params = identify.parse_params(cfg, "k1x,c1x")
+    flat = dict(cfg.params or {})
+    truth = [params[0].value(cfg) * 0.9, params[1].value(cfg) * 1.3]
+    for p, v in zip(params, truth, strict=True):
+        p.write(flat, cfg, v)
+    plant = with_overrides(cfg, {k: flat[k] for k in ("stage1.mounts.stiffness",
+                                                       "stage1.mounts.damping")})
+    spec = [parse_spec("stage1.x:white:20")]
+    res = simulate(cfg, Mode.PASSIVE, 20.0, seed=3, plant=plant,
+                   excite=excitation_signal(cfg, spec, 40_000, 3))
+    write_result_bag(res, tmp_path / "six")
+    col = identify.collect([tmp_path / "six"])
+    fit = identify.fit(col, params)
+    assert fit.value[0] == pytest.approx(truth[0], rel=0.03)
+    assert fit.value[1] == pytest.approx(truth[1], rel=0.10)
+
+
+@pytest.mark.parametrize("names, message", [("k1", "fitted per axis"), ("c2", "per axis"),
+                                            ("m1x", "a mass has no axis")])
+def test_sixdof_names(names: str, message: str) -> None:
+    cfg = load_config(default_config_path().parent / "tem_three_point.yaml")
+    with pytest.raises(identify.DcsmsError, match=message):
+        identify.parse_params(cfg, names)
+    assert [p.name for p in identify.parse_params(cfg, None)][:3] == ["k1x", "k1y", "k1z"]
