@@ -19,6 +19,7 @@ NODES = (
     "feedforward_controller",
     "mode_switch",
     "recorder",
+    "excitation",
 )
 
 setup(

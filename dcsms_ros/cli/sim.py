@@ -185,13 +185,15 @@ def _graph(args: argparse.Namespace) -> int:
     """The ROS graph in lockstep, recorded: ``dcsms up --lockstep --record OUT``.
 
     ``--seed`` becomes ``--set disturbance.seed=N`` (the batch engine's default seed too). The
-    ``--ground-from`` becomes the plant's ``ground_from`` parameter. The graph cannot take a
-    mode schedule (switches go through the services at wall-clock times), so that is refused.
+    ``--ground-from`` becomes the plant's ``ground_from`` parameter, ``--excite`` the excitation
+    node (active from sample 0, so the graph adds what the batch engine adds). The graph cannot
+    take a mode schedule (switches go through the services at wall-clock times) or a plant that
+    differs from the configuration, so those are refused.
     """
     if importlib.util.find_spec("dcsms_ros.cli.up") is None:
         raise DcsmsError("--engine graph: not available (needs `dcsms up`); use --engine batch")
     for flag, value in (("--schedule", args.schedule), ("--clock", args.clock),
-                        ("--plant-set", args.plant_overrides), ("--excite", args.excite)):
+                        ("--plant-set", args.plant_overrides)):
         if value:
             raise DcsmsError(f"--engine graph: {flag} is not supported yet; use --engine batch")
     if args.storage != "mcap":
@@ -208,6 +210,8 @@ def _graph(args: argparse.Namespace) -> int:
         argv += ["--set", f"disturbance.seed={args.seed}"]
     if args.ground_from:
         argv += ["--ground-from", args.ground_from]
+    for spec in args.excite:  # the excitation node, active from sample 0 as in the batch run
+        argv += ["--excite", spec]
     t0 = time.perf_counter()
     status = main(argv)
     if status == 0:

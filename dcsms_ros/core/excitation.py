@@ -316,6 +316,22 @@ class Excitation:
         """The next sample, shape (N, dof)."""
         return self.block(1)[0]
 
+    def at(self, k: int) -> Array:
+        """The wrench of sample ``k`` (>= the next one), shape (N, dof); the samples before it
+        are drawn and dropped, so a sample's value never depends on which others were asked
+        for (a real-time node that misses samples stays on the batch engine's sequence).
+
+        Raises
+        ------
+        ValueError
+            ``k`` was served already.
+        """
+        if k < self.k:
+            raise ValueError(f"excitation sample {k} was served already (next: {self.k})")
+        while k > self.k:
+            self.block(min(k - self.k, 1 << 16))
+        return self.next()
+
 
 def axis_index_dof(dof: int, axis: str) -> int:
     """Index of ``axis`` in a ``dof`` vector (1-DOF: 0 for z)."""
