@@ -238,7 +238,7 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
         arrays[a] = {"f": f, "psd": p_top, "tfs": trans.tfs, "estimates": ests,
                      "psd_bodies": psds}
     js["forces"] = _forces(data, seg, cfg)
-    return {"json": js, "arrays": arrays, "top": top, "aligned": al}
+    return {"json": js, "arrays": arrays, "top": top}
 
 
 def _timefreq(work: list[tuple[BagData, Segment, SystemConfig | None]], axes: list[str],

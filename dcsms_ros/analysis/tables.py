@@ -60,7 +60,7 @@ def segment_arrays(result: dict[str, Any], axes: Sequence[str]) -> tuple[dict[st
     Parameters
     ----------
     result : dict
-        One entry of the analysis's per-segment results (``json``, ``arrays``, ``aligned``).
+        One entry of the analysis's per-segment results (``json``, ``arrays``).
     axes : sequence of str
     """
     js, arrays = result["json"], result["arrays"]

@@ -60,6 +60,9 @@ def test_lockstep_excited_graph_equals_batch_and_fits(domain: int, tmp_path: Pat
     ref, _ = read_topics(batch, names)
     assert sorted(got) == sorted(ref)
     for topic, s in ref.items():
+        assert got[topic].stamp_ns.size == s.stamp_ns.size, (
+            f"{topic}: the recording holds {got[topic].stamp_ns.size} of {s.stamp_ns.size} "
+            "samples (a recorder that fell behind?)")
         np.testing.assert_array_equal(got[topic].stamp_ns, s.stamp_ns, err_msg=topic)
         np.testing.assert_array_equal(got[topic].values, s.values, err_msg=topic)
     assert got["/dcsms/force/excitation"].frame_id == "stage1"
