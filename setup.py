@@ -19,6 +19,7 @@ NODES = (
     "feedforward_controller",
     "mode_switch",
     "recorder",
+    "excitation",
 )
 
 setup(
@@ -31,6 +32,7 @@ setup(
         ("share/" + package_name + "/config", sorted(glob("config/*.yaml"))),
         ("share/" + package_name + "/config/targets", sorted(glob("config/targets/*.yaml"))),
         ("share/" + package_name + "/launch", sorted(glob("launch/*.py"))),
+        ("share/" + package_name + "/layouts", sorted(glob("layouts/*"))),
     ],
     install_requires=["setuptools"],
     # numba compiles the batch engine's fast path; without it the engine steps the objects

@@ -3,8 +3,10 @@ dcsms.launch.py``): the same nodes, names and parameter file that ``dcsms up`` s
 
 Arguments: ``config`` (params file, default the packaged ``config/table1.yaml``), ``schedule``
 (``realtime`` | ``lockstep``), ``mode`` (initial mode, e.g. ``dfbc_ffc``), ``duration_s``
-(simulated seconds, 0 = until stopped) and ``rt_priority`` (SCHED_FIFO priority 1-99 of the
-control path: plant, decoupling, controllers; 0 = default scheduler), as ``dcsms up``.
+(simulated seconds, 0 = until stopped), ``rt_priority`` (SCHED_FIFO priority 1-99 of the
+control path: plant, decoupling, controllers; 0 = default scheduler), ``excite``
+(comma-separated excitation specifications, e.g. ``stage1.z:white:5``; empty = no excitation
+node) and ``excite_active`` (start it active), as ``dcsms up``.
 """
 
 import os
@@ -61,6 +63,18 @@ def _nodes(context, *args, **kwargs):
                           namespace=NAMESPACE,
                           parameters=[config, common, sim, {"stage": i, "enabled": cid in on}],
                           output="screen", additional_env=rt))
+    excite = [s.strip() for s in LaunchConfiguration("excite").perform(context).split(",")
+              if s.strip()]
+    if excite:  # the excitation node, summed by the plant (its `excitation` parameter)
+        active = LaunchConfiguration("excite_active").perform(context).lower() == "true"
+        nodes[0] = Node(package=PACKAGE, executable="plant_simulator", name="plant_simulator",
+                        namespace=NAMESPACE, parameters=[config, common, {
+                            "duration_s": duration, "excitation": True}],
+                        output="screen", additional_env=rt)
+        nodes.append(Node(package=PACKAGE, executable="excitation", name="excitation",
+                          namespace=NAMESPACE, parameters=[config, common, sim, {
+                              "spec": excite, "active": active, "duration_s": duration}],
+                          output="screen", additional_env=rt))
     return nodes
 
 
@@ -80,5 +94,11 @@ def generate_launch_description():
         DeclareLaunchArgument("rt_priority", default_value="0",
                               description="SCHED_FIFO priority 1-99 of the control path "
                               "(needs CAP_SYS_NICE); 0 = default scheduler"),
+        DeclareLaunchArgument("excite", default_value="",
+                              description="excitation specifications, comma-separated (e.g. "
+                              "stage1.z:white:5); empty = no excitation node"),
+        DeclareLaunchArgument("excite_active", default_value="true",
+                              description="start the excitation with the run (else "
+                              "/dcsms/excitation/enable starts it)"),
         OpaqueFunction(function=_nodes),
     ])

@@ -17,7 +17,7 @@ PKG = "dcsms_ros"
 VENV_BIN = Path(sys.executable).parent
 #: ``ros2 run dcsms_ros <executable>``: one node per module of dcsms_ros/nodes.
 NODES = ("plant_simulator", "sensor_decoupling", "feedback_controller",
-         "feedforward_controller", "mode_switch", "recorder")
+         "feedforward_controller", "mode_switch", "recorder", "excitation")
 EXECUTABLES = (*NODES, "dcsms")
 REQUIRED_EXEC_DEPENDS = {
     "rclpy", "std_msgs", "geometry_msgs", "sensor_msgs", "std_srvs", "rosgraph_msgs",

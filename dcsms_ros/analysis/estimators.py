@@ -85,8 +85,21 @@ def h1_random_error(coherence: np.ndarray, averages: int) -> np.ndarray:
         return np.sqrt(1.0 - g2) / (np.sqrt(g2) * np.sqrt(2.0 * max(averages, 1)))
 
 
-def _averages(n: int, nperseg: int) -> int:
+def welch_averages(n: int, nperseg: int) -> int:
+    """Half-overlapping segments of ``nperseg`` samples in a record of ``n`` samples."""
     return max((n - nperseg) // (nperseg // 2) + 1, 0)
+
+
+def density_scale(win: np.ndarray, fs: float) -> np.ndarray:
+    """Factor turning ``|rfft(segment * win)|^2`` into a one-sided PSD (unit^2/Hz), shape
+    (nperseg // 2 + 1,): density scaling, every bin but DC (and Nyquist for an even length)
+    doubled."""
+    n = win.size
+    scale = np.full(n // 2 + 1, 2.0 / (fs * float(np.sum(win ** 2))))
+    scale[0] /= 2.0
+    if n % 2 == 0:
+        scale[-1] /= 2.0
+    return scale
 
 
 def welch_sums(x: np.ndarray, y: np.ndarray | None, fs: float, nperseg: int,
@@ -132,11 +145,7 @@ def welch_sums(x: np.ndarray, y: np.ndarray | None, fs: float, nperseg: int,
             ffts.append(z)
         if len(ffts) == 2:
             cross += np.sum(np.conj(ffts[0]) * ffts[1], axis=0)
-    # density scaling; every bin but DC (and Nyquist for even nperseg) doubled: one-sided
-    scale = np.full(nf, 2.0 / (fs * float(np.sum(win ** 2)) * max(nseg, 1)))
-    scale[0] /= 2.0
-    if nperseg % 2 == 0:
-        scale[-1] /= 2.0
+    scale = density_scale(win, fs) / max(nseg, 1)
     spectra = [a * scale for a in auto]
     if y is not None:
         spectra.append(cross * scale)
@@ -161,7 +170,8 @@ def transfer_h1(x: np.ndarray, y: np.ndarray, fs: float,
     with np.errstate(divide="ignore", invalid="ignore"):
         h = np.where(sxx > 0, sxy / sxx, 0.0)
         coh = np.where(sxx * syy > 0, np.abs(sxy) ** 2 / (sxx * syy), 0.0)
-    return TransferEstimate(f, h, np.clip(coh.real, 0.0, 1.0), _averages(np.shape(x)[0], nper))
+    return TransferEstimate(f, h, np.clip(coh.real, 0.0, 1.0),
+                            welch_averages(np.shape(x)[0], nper))
 
 
 def psd(x: np.ndarray, fs: float, nperseg: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -237,34 +247,45 @@ def third_octave_bands(f_lo: float = 1.0, f_hi: float = 80.0) -> np.ndarray:
     return np.column_stack([fm, fm * 10 ** (-1 / 20), fm * 10 ** (1 / 20)])
 
 
-def band_rms(f: np.ndarray, p: np.ndarray, bands: np.ndarray) -> np.ndarray:
-    """RMS in each band from a one-sided PSD: ``sqrt(integral of p over the band)``.
-
-    Each PSD bin i stands for ``[f_i - df/2, f_i + df/2]``; a bin straddling a band edge is
-    split in proportion to its overlap, so adjacent bands partition the power exactly.
+def band_weights(f: np.ndarray, bands: np.ndarray) -> np.ndarray:
+    """Width (Hz) of each PSD bin inside each band, shape (B, F): bin i stands for
+    ``[f_i - df/2, f_i + df/2]``, and a bin straddling a band edge is split in proportion to its
+    overlap, so adjacent bands partition the power exactly.
 
     Parameters
     ----------
     f : ndarray, shape (F,)
         Uniformly spaced frequencies (Hz).
-    p : ndarray, shape (F,)
-        PSD (unit^2/Hz).
+    bands : ndarray, shape (B, 3)
+        Centre, lower edge, upper edge (Hz) per band.
+    """
+    df = float(f[1] - f[0])
+    lo = f - df / 2
+    hi = f + df / 2
+    b_lo = np.asarray(bands)[:, 1:2]
+    b_hi = np.asarray(bands)[:, 2:3]
+    return np.clip(np.minimum(hi[None, :], b_hi) - np.maximum(lo[None, :], b_lo), 0.0, None)
+
+
+def band_rms(f: np.ndarray, p: np.ndarray, bands: np.ndarray) -> np.ndarray:
+    """RMS in each band from a one-sided PSD: ``sqrt(integral of p over the band)`` (bins split
+    at the band edges, :func:`band_weights`).
+
+    Parameters
+    ----------
+    f : ndarray, shape (F,)
+        Uniformly spaced frequencies (Hz).
+    p : ndarray, shape (F,) or (F, T)
+        PSD (unit^2/Hz), or T of them as columns.
     bands : ndarray, shape (B, 3)
         From :func:`third_octave_bands` (centre, lower, upper).
 
     Returns
     -------
-    ndarray, shape (B,)
+    ndarray, shape (B,) or (B, T)
         Band RMS (unit).
     """
-    df = float(f[1] - f[0])
-    lo = f - df / 2
-    hi = f + df / 2
-    out = np.empty(len(bands))
-    for j, (_, b_lo, b_hi) in enumerate(bands):
-        overlap = np.clip(np.minimum(hi, b_hi) - np.maximum(lo, b_lo), 0.0, None)
-        out[j] = np.sqrt(np.sum(p * overlap))
-    return out
+    return np.asarray(np.sqrt(band_weights(f, bands) @ np.asarray(p, dtype=np.float64)))
 
 
 def band_rms_around(f: np.ndarray, p: np.ndarray, centre_hz: float,
@@ -277,6 +298,7 @@ def band_rms_around(f: np.ndarray, p: np.ndarray, centre_hz: float,
 
 __all__ = [
     "MIN_AVERAGES", "NOMINAL_CENTRES", "Peak", "TransferEstimate", "asd", "band_rms",
-    "band_rms_around", "choose_nperseg", "find_resonances", "psd", "third_octave_bands",
-    "transfer_h1", "welch_sums",
+    "band_rms_around", "band_weights", "choose_nperseg", "density_scale", "find_resonances",
+    "psd",
+    "third_octave_bands", "transfer_h1", "welch_averages", "welch_sums",
 ]

@@ -9,6 +9,7 @@ topic                           type                        content
 /dcsms/truth/<body>             geometry_msgs/TwistStamped  true twist, frame_id = body
 /dcsms/velocity/<body>          geometry_msgs/TwistStamped  decoupled twist, frame_id = body
 /dcsms/force/<controller>       geometry_msgs/WrenchStamped command, frame_id = its stage
+/dcsms/force/excitation         geometry_msgs/WrenchStamped excitation (if any), frame_id = stage
 /dcsms/actuators/applied        sensor_msgs/JointState      ``name`` = actuators, ``effort`` N
 /dcsms/mode                     std_msgs/String             label at every switch (latched QoS)
 /dcsms/config                   std_msgs/String             flat parameters as YAML (latched)
@@ -40,6 +41,7 @@ from dcsms_ros.analysis.reader import CONFIG_TOPIC, config_to_yaml
 from dcsms_ros.core import topics
 from dcsms_ros.core.engine import SimResult
 from dcsms_ros.core.modes import controller_stage
+from dcsms_ros.errors import BagError
 
 #: Samples per topic encoded at once (~100 B each: a few MB per topic and block).
 BLOCK = 20_000
@@ -64,6 +66,17 @@ def sample_times_ns(res: SimResult, t0_ns: int = 0) -> NDArray[np.int64]:
 def _force_frame(controller: str) -> str:
     """The stage a controller pushes: FB on stage i -> ``stage<i>``, FF -> ``stage1``."""
     return f"stage{controller_stage(controller)}"
+
+
+def _excited_stage(res: SimResult) -> int | None:
+    """Index of the stage the run's excitation pushes (one stage per run), or None."""
+    if res.excitation is None:
+        return None
+    hit = np.flatnonzero(np.any(res.excitation != 0.0, axis=(0, 2)))
+    if hit.size > 1:
+        raise BagError("the excitation pushes several stages; /dcsms/force/excitation holds "
+                       "one (record one stage per run)")
+    return int(hit[0]) if hit.size else 0
 
 
 def export_result(res: SimResult, writer: BagWriter, t0_ns: int = 0, clock: bool = False,
@@ -104,6 +117,9 @@ def export_result(res: SimResult, writer: BagWriter, t0_ns: int = 0, clock: bool
         writer.add_topic(topics.velocity_topic(b), cdr.TWIST_STAMPED)
     for cid in res.wrench:
         writer.add_topic(topics.force_topic(cid), cdr.WRENCH_STAMPED)
+    exc_stage = _excited_stage(res)
+    if exc_stage is not None:
+        writer.add_topic(topics.EXCITATION, cdr.WRENCH_STAMPED)
     writer.add_topic(topics.ACTUATORS_APPLIED, cdr.JOINT_STATE)
     if clock:
         writer.add_topic(topics.CLOCK, cdr.CLOCK)
@@ -125,6 +141,10 @@ def export_result(res: SimResult, writer: BagWriter, t0_ns: int = 0, clock: bool
         for cid, w in res.wrench.items():
             writer.write_many(topics.force_topic(cid), t, cdr.encode_stamped(
                 cdr.WRENCH_STAMPED, t, _force_frame(cid), to_six(w[sl], dof)))
+        if exc_stage is not None and res.excitation is not None:
+            writer.write_many(topics.EXCITATION, t, cdr.encode_stamped(
+                cdr.WRENCH_STAMPED, t, f"stage{exc_stage + 1}",
+                to_six(res.excitation[sl, exc_stage], dof)))
         writer.write_many(topics.ACTUATORS_APPLIED, t, cdr.encode_joint_state(
             t, "", res.actuator_names, effort=res.applied[sl]))
         if clock:

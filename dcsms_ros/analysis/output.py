@@ -14,8 +14,10 @@ if TYPE_CHECKING:
     from dcsms_ros.analysis.report import Summary
 
 
-def write_all(out: Path, summary: Summary, results: list[dict[str, Any]]) -> None:
-    """Write every output file into ``out`` (created) and list them in ``summary.files``."""
+def write_all(out: Path, summary: Summary, results: list[dict[str, Any]],
+              export: str | None = None) -> None:
+    """Write every output file into ``out`` (created) and list them in ``summary.files``;
+    ``export`` adds the spectra tables in that format (:mod:`.tables`)."""
     from dcsms_ros.analysis.report import dumps
 
     try:
@@ -25,33 +27,56 @@ def write_all(out: Path, summary: Summary, results: list[dict[str, Any]]) -> Non
     files = []
     for a in summary.axes:
         files += _figures(out, a, results)
+    for i, axis, tf in summary.timefreq:
+        tag = f"_{i + 1}" if len(summary.bags) > 1 else ""
+        name = Path(summary.bags[i]).name
+        files.append(plots.plot_spectrogram(
+            out / f"spectrogram{tag}_{axis}.png",
+            f"Top-stage velocity, axis {axis}, {name} (dashed: mode switches; shaded: excited)",
+            tf))
+        files.append(plots.plot_blrms(
+            out / f"blrms{tag}_{axis}.png",
+            f"Band-limited RMS of the top-stage velocity, axis {axis}, {name}", tf))
+    if export is not None:
+        from dcsms_ros.analysis.tables import write_spectra
+
+        files += write_spectra(out, results, summary.axes, export)
     summary.files = [str(p) for p in [out / "report.md", *files, out / "summary.json"]]
     (out / "report.md").write_text(markdown(summary, [Path(f).name for f in files]))
     (out / "summary.json").write_text(dumps(summary) + "\n")
 
 
+def _curve(label: str, e: Any, i: int) -> dict[str, Any]:
+    """Plot curve of stage ``i`` of an :class:`~dcsms_ros.analysis.frf.Estimate`."""
+    t = e.tfs[i]
+    cmp = e.compare()
+    return {"label": label, "f": t.f, "h": t.h, "coherence": t.coherence,
+            "averages": t.averages,
+            "h_model": None if e.model is None else e.model[:, i],
+            "flagged": cmp[e.stages[i]]["disagree_bands_hz"] if cmp else []}
+
+
 def _figures(out: Path, axis: str, results: list[dict[str, Any]]) -> list[Path]:
-    tf_curves, asd_curves, oct_curves = [], [], []
+    tf_curves, mob_curves, asd_curves, oct_curves = [], [], [], []
     centres = None
     for r in results:
         js, arr = r["json"], r["arrays"][axis]
-        label = js["mode"]
+        label = js["segment"]
         asd_curves.append({"label": label, "f": arr["f"], "asd": np.sqrt(arr["psd"])})
         ax = js["axes"][axis]
         centres = np.asarray(ax["third_octave_centres_hz"])
         oct_curves.append({"label": label, "rms": ax["third_octave_rms_mps"][r["top"]]})
-        if arr["tfs"]:
-            t = arr["tfs"][-1]
-            an = arr["analytic"]
-            tf_curves.append({"label": label, "f": t.f, "h": t.h, "coherence": t.coherence,
-                              "averages": t.averages,
-                              "f_an": t.f if an else None,
-                              "h_an": an["h"][-1] if an else None,
-                              "flagged": an["flagged"] if an else []})
+        trans, mob = arr["estimates"]["transmissibility"], arr["estimates"]["mobility"]
+        if trans.available:
+            tf_curves.append(_curve(label, trans, len(trans.stages) - 1))
+        if mob.available:
+            mob_curves += [_curve(f"{label}: {s}", mob, i) for i, s in enumerate(mob.stages)]
     files = []
     if tf_curves:
         files.append(plots.plot_transmissibility(out / f"transmissibility_{axis}.png", axis,
                                                  tf_curves))
+    if mob_curves:
+        files.append(plots.plot_mobility(out / f"mobility_{axis}.png", axis, mob_curves))
     if asd_curves:
         files.append(plots.plot_asd(out / f"asd_{axis}.png", axis, asd_curves))
     if oct_curves and centres is not None:
@@ -72,12 +97,17 @@ def markdown(summary: Summary, figures: list[str]) -> str:
              "", _md_table4(summary), "",
              "Definition: " + " ".join(summary.definition.split()), "",
              "## Vibration criteria (one-third-octave RMS velocity, 1-80 Hz)", "",
-             _md_vc(summary), "", "## Analytic model vs estimate", "",
-             ("Bands where |estimate| and |analytic| differ by more than 3 dB, compared only "
-              "where the random error of |H1| is at most 10 % (Bendat & Piersol: "
-              "sqrt(1-coh)/(sqrt(coh)*sqrt(2*averages))), top stage. Elsewhere the table "
-              "forces, not the ground, dominate the table's motion."), "",
-             _md_analytic(summary), "",
+             _md_vc(summary), "", "## What each segment can estimate", "",
+             ("Transmissibility (H1 from the ground velocity) where the ground drives the "
+              "stages, mobility (H1 from the recorded excitation force) in excited segments. "
+              "A bin is usable where the random error of |H1| is at most 10 % (Bendat & "
+              "Piersol: sqrt(1-coh)/(sqrt(coh)*sqrt(2*averages))); estimated: >= 50 % of the "
+              "0.5-100 Hz bins usable for some stage, partial: >= 20 bins."), "",
+             _md_estimates(summary), "", "## Loop model against the measurement", "",
+             ("The discrete closed loop the engine runs (`core.loop_model`, from the recorded "
+              "configuration), seen through the same Welch window, against every usable bin; "
+              "bands where the two differ by more than 3 dB."), "",
+             _md_model(summary), "",
              "## Actuator forces", "", _md_forces(summary), ""]
     if summary.paper is not None:
         lines[lines.index("## Vibration criteria (one-third-octave RMS velocity, 1-80 Hz)"):0] = [
@@ -105,7 +135,7 @@ def _md_table4(s: Summary) -> str:
         grow = ", ".join(f"{g['body']} {g['axis']} grows {g['rate_per_s']:.2g} /s"
                          for g in st.get("growing", []))
         cells.append(f"**unstable** ({grow})" if st.get("unstable") else "steady")
-        rows.append(f"| {seg['mode']} | " + " | ".join(cells) + " |")
+        rows.append(f"| {seg['segment']} | " + " | ".join(cells) + " |")
     return "\n".join(rows)
 
 
@@ -128,25 +158,43 @@ def _md_vc(s: Summary) -> str:
     for seg in s.segments:
         for a in s.axes:
             for table, v in seg["axes"][a]["vc"].items():
-                rows.append(f"| {seg['mode']} | {a} | {table} | {v['best'] or 'none'} | "
+                rows.append(f"| {seg['segment']} | {a} | {table} | {v['best'] or 'none'} | "
                             f"{_fmt(v['margin_db'], '+.1f')} | "
                             f"{_fmt(v['worst_band_hz'], '.3g')} |")
     return "\n".join(rows)
 
 
-def _md_analytic(s: Summary) -> str:
-    rows = ["| mode | axis | compared bins | max error (dB) | bands > 3 dB (Hz) |",
-            "|---|---|---:|---:|---|"]
+def _md_estimates(s: Summary) -> str:
+    rows = ["| segment | axis | estimate | from | status | usable bins (of band) |",
+            "|---|---|---|---|---|---|"]
     for seg in s.segments:
         for a in s.axes:
-            an = seg["axes"][a].get("analytic")
-            if an is None:
-                rows.append(f"| {seg['mode']} | {a} | - | - | no analytic model |")
-                continue
-            bands = ", ".join(f"{lo:.2f}-{hi:.2f}" for lo, hi in an["disagree_bands_hz"])
-            rows.append(f"| {seg['mode']} | {a} | {an['compared_bins']} | "
-                        f"{_fmt(an['max_abs_error_db'], '.1f')} | {bands or 'none'} |")
+            for kind, v in seg["axes"][a].get("estimates", {}).items():
+                if v["status"] == "unavailable":
+                    detail = v["reason"]
+                else:
+                    detail = ", ".join(f"{st} {n}" for st, n in v["usable_bins"].items())
+                    detail += f" (of {v['band_bins']})"
+                rows.append(f"| {seg['segment']} | {a} | {kind} | {v['source'] or '-'} | "
+                            f"{v['status']} | {detail} |")
     return "\n".join(rows)
+
+
+def _md_model(s: Summary) -> str:
+    rows = [("| segment | axis | response | stage | compared bins (of band) | RMS error (dB) "
+             "| max error (dB) | bands > 3 dB (Hz) |"), "|---|---|---|---|---:|---:|---:|---|"]
+    for seg in s.segments:
+        for a in s.axes:
+            for kind, cmp in seg["axes"][a].get("model", {}).items():
+                if cmp is None:
+                    continue
+                for st, c in cmp.items():
+                    bands = ", ".join(f"{lo:.2f}-{hi:.2f}" for lo, hi in c["disagree_bands_hz"])
+                    rows.append(f"| {seg['segment']} | {a} | {kind} | {st} | "
+                                f"{c['compared_bins']} (of {c['band_bins']}) | "
+                                f"{_fmt(c['rms_error_db'], '.2f')} | "
+                                f"{_fmt(c['max_abs_error_db'], '.1f')} | {bands or 'none'} |")
+    return "\n".join(rows) if len(rows) > 2 else "No model (no configuration or no mode)."
 
 
 def _md_forces(s: Summary) -> str:
@@ -154,7 +202,7 @@ def _md_forces(s: Summary) -> str:
             "|---|---|---:|---:|---:|---:|"]
     for seg in s.segments:
         for c in seg.get("forces", []):
-            rows.append(f"| {seg['mode']} | {c['channel']} | {_fmt(c['rms_n'], '.3g')} | "
+            rows.append(f"| {seg['segment']} | {c['channel']} | {_fmt(c['rms_n'], '.3g')} | "
                         f"{_fmt(c['peak_n'], '.3g')} | {_fmt(c['limit_n'], '.4g')} | "
                         f"{c['saturated_samples']} |")
     return "\n".join(rows) if len(rows) > 2 else "No `/dcsms/actuators/applied` data."

@@ -2,7 +2,8 @@
 
 Only what the analysis needs is kept: the decoupled velocities ``/dcsms/velocity/<body>``
 (or ``/dcsms/truth/<body>`` when a bag has no decoupled ones), the applied actuator forces, the
-mode timeline and the recorded configuration. Values are kept as float32 (velocities of
+excitation wrench (``/dcsms/force/excitation``), the mode timeline and the recorded
+configuration. Values are kept as float32 (velocities of
 ~1e-6 m/s keep 7 significant digits, far below any estimator's variance) and twists only as
 x, y, z, so an hour at 2 kHz needs ~0.6 GB (1-DOF, 2 stages) to ~0.8 GB (6-DOF, 8 coils)
 by arithmetic (20 B per velocity sample, 8 B + 4 B per force channel); `make bench` measures a
@@ -42,6 +43,8 @@ CONFIG_TOPIC = topics.CONFIG
 #: Twist components kept per body: x, y, z translations.
 KEPT_AXES = (0, 1, 2)
 AXIS_NAMES = ("x", "y", "z")
+#: Columns of a kept wrench: force x y z (N), moment x y z (N*m).
+WRENCH_AXES = ("x", "y", "z", "rx", "ry", "rz")
 _BODY_TOPIC = re.compile(r"^/dcsms/(velocity|truth)/(ground|stage\d+)$")
 
 Progress = Callable[[int, int], None]
@@ -57,9 +60,10 @@ class TopicSeries:
     stamp_ns : ndarray of int64, shape (K,)
         Header stamps (ns).
     values : ndarray of float32, shape (K, n)
-        Twist x, y, z (m/s) or JointState effort (N), one column per channel.
+        Twist x, y, z (m/s), wrench x y z rx ry rz (N, N*m) or JointState effort (N), one
+        column per channel.
     columns : tuple of str
-        Names of the n columns (``x y z`` or joint names).
+        Names of the n columns (``x y z``, ``x y z rx ry rz`` or joint names).
     frame_id : str
     log_ns : ndarray of int64, shape (K,) or None
         Bag (receive) time; kept for the reference topic only, to place mode switches.
@@ -95,6 +99,7 @@ class BagData:
     path: Path
     bodies: dict[str, TopicSeries] = field(default_factory=dict)  # body name -> velocity
     applied: TopicSeries | None = None
+    excitation: TopicSeries | None = None  # frame_id: the excited stage
     modes: list[ModeEvent] = field(default_factory=list)
     config_text: str | None = None
     source: str = "velocity"  # or "truth"
@@ -145,14 +150,20 @@ def read_bag(path: str | Path, progress: Progress | None = None,
     BagError
         If the bag is missing, unreadable, truncated or holds no velocity topics.
     """
+    p = Path(path)
+    return _with_reader(p, lambda reader: _read(reader, p, progress, chunk))
+
+
+def _with_reader(p: Path, work: Callable[[Any], Any]) -> Any:
+    """``work(reader)`` on an open rosbags Reader of ``p``; every failure but a BagError
+    becomes one BagError naming the file."""
     from rosbags.rosbag2 import Reader
 
-    p = Path(path)
     if not p.exists():
         raise BagError(f"{p}: no such bag")
     try:
         with Reader(p) as reader:
-            return _read(reader, p, progress, chunk)
+            return work(reader)
     except BagError:
         raise
     except Exception as exc:  # noqa: BLE001 - rosbags/mcap/sqlite raise many types
@@ -183,8 +194,9 @@ def _read(reader: Any, path: Path, progress: Progress | None, chunk: int) -> Bag
     wanted = {c.topic: c for c in chosen.values()}
     for c in conns:
         applied = c.topic == topics.ACTUATORS_APPLIED and c.msgtype == cdr.JOINT_STATE
+        excite = c.topic == topics.EXCITATION and c.msgtype == cdr.WRENCH_STAMPED
         text = c.topic in (topics.MODE, CONFIG_TOPIC) and c.msgtype == cdr.STRING
-        if applied or text:
+        if applied or excite or text:
             wanted[c.topic] = c
     sinks = {t: _Sink(c, keep_log=(t == chosen[ref_body].topic))
              for t, c in wanted.items() if c.msgtype != cdr.STRING}
@@ -208,6 +220,8 @@ def _read(reader: Any, path: Path, progress: Progress | None, chunk: int) -> Bag
         data.bodies[body] = sinks[c.topic].result()
     if topics.ACTUATORS_APPLIED in sinks:
         data.applied = sinks[topics.ACTUATORS_APPLIED].result()
+    if topics.EXCITATION in sinks:
+        data.excitation = sinks[topics.EXCITATION].result()
     data.modes = _place_modes(mode_log, data.bodies[ref_body])
     for s in sinks.values():
         if s.fallback:
@@ -284,8 +298,9 @@ def _read_messages(reader: Any, wanted: dict[str, Any], sinks: dict[str, _Sink],
 class _Sink:
     """Buffers one topic's raw messages and decodes them chunk by chunk into arrays."""
 
-    def __init__(self, conn: Any, keep_log: bool) -> None:
+    def __init__(self, conn: Any, keep_log: bool, full: bool = False) -> None:
         self.conn = conn
+        self.full = full  # every component as float64 (read_topics), not the analysis subset
         self.raw: list[bytes] = []
         self.log: list[int] = []
         self.keep_log = keep_log
@@ -328,9 +343,14 @@ class _Sink:
 
     def _store(self, batch: cdr.Batch, log: Any) -> None:
         self.fallback += not batch.fast
-        if self.conn.msgtype == cdr.TWIST_STAMPED:
+        if self.full:
+            vals, self.columns = _all_columns(self.conn.msgtype, batch)
+        elif self.conn.msgtype == cdr.TWIST_STAMPED:
             vals = batch.fields["twist"][:, KEPT_AXES]
             self.columns = AXIS_NAMES
+        elif self.conn.msgtype == cdr.WRENCH_STAMPED:
+            vals = batch.fields["wrench"]
+            self.columns = WRENCH_AXES
         else:
             vals = batch.fields["effort"]
             self.columns = batch.names
@@ -349,7 +369,8 @@ class _Sink:
 
     def _ensure(self, n: int, width: int) -> None:
         if self.values is None:
-            self.values = np.empty((self.stamp.size, width), np.float32)
+            self.values = np.empty((self.stamp.size, width),
+                                   np.float64 if self.full else np.float32)
         if n > self.stamp.size:  # metadata under-counted: grow geometrically
             size = max(n, 2 * self.stamp.size)
             self.stamp = np.resize(self.stamp, size)
@@ -368,6 +389,108 @@ class _Sink:
             stamp, vals = stamp[order], vals[order]
         return TopicSeries(self.conn.topic, self.conn.msgtype, stamp, vals, self.columns,
                            self.frame_id, log)
+
+
+#: Column names of every component (:func:`read_topics`), SI units.
+TWIST_COLUMNS = (("vx", "m/s"), ("vy", "m/s"), ("vz", "m/s"), ("wx", "rad/s"), ("wy", "rad/s"),
+                 ("wz", "rad/s"))
+WRENCH_COLUMNS = (("fx", "N"), ("fy", "N"), ("fz", "N"), ("mx", "N*m"), ("my", "N*m"),
+                  ("mz", "N*m"))
+#: Units of the JointState fields the graph fills (velocity: geophone channels, effort: forces).
+JOINT_UNITS = {"position": "m", "velocity": "m/s", "effort": "N"}
+#: Message types :func:`read_topics` exports.
+EXPORTABLE = (cdr.TWIST_STAMPED, cdr.WRENCH_STAMPED, cdr.JOINT_STATE)
+
+
+def _all_columns(msgtype: str, batch: cdr.Batch) -> tuple[np.ndarray, tuple[str, ...]]:
+    if msgtype == cdr.TWIST_STAMPED:
+        return batch.fields["twist"], tuple(c for c, _ in TWIST_COLUMNS)
+    if msgtype == cdr.WRENCH_STAMPED:
+        return batch.fields["wrench"], tuple(c for c, _ in WRENCH_COLUMNS)
+    parts, names = [], []
+    for fld in ("position", "velocity", "effort"):
+        v = batch.fields.get(fld)
+        if v is not None and v.shape[1]:
+            parts.append(v)
+            names += [f"{fld}:{n}" for n in batch.names] if batch.names else [
+                f"{fld}:{i}" for i in range(v.shape[1])]
+    if not parts:
+        return np.zeros((batch.stamp_ns.size, 0)), ()
+    return np.hstack(parts), tuple(names)
+
+
+def column_unit(msgtype: str, column: str) -> str:
+    """SI unit of one :func:`read_topics` column."""
+    for c, u in (*TWIST_COLUMNS, *WRENCH_COLUMNS):
+        if c == column and msgtype in (cdr.TWIST_STAMPED, cdr.WRENCH_STAMPED):
+            return u
+    return JOINT_UNITS.get(column.partition(":")[0], "-")
+
+
+def read_topics(path: str | Path, names: Iterable[str] | None = None,
+                progress: Progress | None = None,
+                strict: bool = True) -> tuple[dict[str, TopicSeries], list[tuple[int, str]]]:
+    """Every component of the chosen topics at full precision (float64), and the mode log.
+
+    Parameters
+    ----------
+    path : str or Path
+        rosbag2 directory (or a bare ``.mcap``/``.db3`` file).
+    names : iterable of str, optional
+        Topics or ``fnmatch`` patterns (``/dcsms/velocity/*``); default: every TwistStamped,
+        WrenchStamped and JointState topic under ``/dcsms``.
+    progress : callable(done, total), optional
+    strict : bool
+        Every name must match a topic with numbers (else BagError); False skips those that
+        match none.
+
+    Returns
+    -------
+    series : dict of topic to TopicSeries
+        Values (K, n) float64 in SI units; columns ``vx vy vz wx wy wz`` (m/s, rad/s),
+        ``fx fy fz mx my mz`` (N, N*m), or ``<field>:<joint>`` (JointState).
+    modes : list of (bag time ns, label)
+        ``/dcsms/mode`` as recorded.
+
+    Raises
+    ------
+    BagError
+        Unreadable bag, a named topic that is missing, or one of a type without numbers.
+    """
+    from fnmatch import fnmatch
+
+    p = Path(path)
+    pats = list(names) if names is not None else ["/dcsms/*"]
+    modes: list[tuple[int, str]] = []
+
+    def on_text(conn: Any, t_ns: int, raw: bytes | np.ndarray) -> None:
+        modes.append((t_ns, cdr.decode_string(bytes(raw)).strip()))
+
+    def work(reader: Any) -> dict[str, TopicSeries]:
+        conns = list(reader.connections)
+        wanted: dict[str, Any] = {}
+        for pat in pats:
+            hit = [c for c in conns if fnmatch(c.topic, pat)]
+            num = [c for c in hit if c.msgtype in EXPORTABLE]
+            if names is not None and strict and not num:
+                why = (f"type {hit[0].msgtype} has no numeric samples to export" if hit
+                       else "no such topic")
+                raise BagError(f"{p}: {pat}: {why} (topics: "
+                               f"{', '.join(sorted({c.topic for c in conns}))})")
+            wanted.update({c.topic: c for c in num})
+        wanted.update({c.topic: c for c in conns
+                       if c.topic == topics.MODE and c.msgtype == cdr.STRING})
+        sinks = {t: _Sink(c, keep_log=False, full=True) for t, c in wanted.items()
+                 if c.msgtype != cdr.STRING}
+        total = sum(c.msgcount for c in wanted.values())
+        if not _read_chunks(reader, wanted, sinks, on_text, progress, total):
+            modes.clear()
+            sinks = {t: _Sink(s.conn, False, full=True) for t, s in sinks.items()}
+            _read_messages(reader, wanted, sinks, on_text, progress, total, 50_000)
+        return {t: s.result() for t, s in sorted(sinks.items())}
+
+    series = _with_reader(p, work)
+    return series, sorted(modes)
 
 
 def _place_modes(mode_log: Iterable[tuple[int, str]], ref: TopicSeries) -> list[ModeEvent]:
@@ -392,6 +515,7 @@ def _place_modes(mode_log: Iterable[tuple[int, str]], ref: TopicSeries) -> list[
 
 
 __all__ = [
-    "AXIS_NAMES", "CONFIG_TOPIC", "BagData", "ModeEvent", "TopicSeries", "config_from_yaml",
-    "config_to_yaml", "read_bag",
+    "AXIS_NAMES", "CONFIG_TOPIC", "EXPORTABLE", "WRENCH_AXES", "BagData", "ModeEvent",
+    "TopicSeries", "column_unit", "config_from_yaml", "config_to_yaml", "read_bag",
+    "read_topics",
 ]

@@ -11,22 +11,25 @@ from typing import Any
 import numpy as np
 
 from dcsms_ros.analysis import estimators as est
-from dcsms_ros.analysis import modetable
+from dcsms_ros.analysis import frf, modetable, timefreq
 from dcsms_ros.analysis import paper as paper_table
 from dcsms_ros.analysis.criteria import evaluate
+from dcsms_ros.analysis.modelfrf import LoopFrf
 from dcsms_ros.analysis.reader import AXIS_NAMES, BagData, Progress, config_from_yaml, read_bag
-from dcsms_ros.analysis.segments import MIN_SEGMENT_S, SETTLE_S, Segment, align, split_segments
+from dcsms_ros.analysis.segments import (
+    MIN_SEGMENT_S,
+    SETTLE_S,
+    Segment,
+    align,
+    split_excited,
+    split_segments,
+)
 from dcsms_ros.analysis.stability import envelope
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import parse_mode
+from dcsms_ros.errors import DcsmsError
 from dcsms_ros.jsonutil import jsonable
 
-#: Analytic and estimated transmissibility "disagree" beyond this (dB).
-DISAGREE_DB = 3.0
-#: Bins compared with the analytic model: 1-sigma random error of |H1| at most 10 % (0.8 dB),
-#: so a 3 dB disagreement is > 3.5 sigma, not scatter.
-MAX_RANDOM_ERROR = 0.1
-COMPARE_RANGE_HZ = (0.5, 100.0)
 #: An applied force within this fraction of its limit counts as saturated.
 SATURATION_FRACTION = 0.999
 
@@ -38,8 +41,10 @@ class Summary:
     Attributes
     ----------
     segments : list of dict
-        One per analysed mode segment (see ``summary.json``: ``mode``, ``axes.<a>.normalized``,
-        ``axes.<a>.attenuation_db``, ``vc``, ``analytic``, ``forces`` ...).
+        One per analysed segment (see ``summary.json``: ``mode``, ``segment`` (the mode, and
+        the excitation when the segment is excited), ``axes.<a>.normalized``,
+        ``axes.<a>.attenuation_db``, ``vc``, ``estimates`` (what the segment can estimate, with
+        the usable bins), ``model`` (the loop model against every usable bin), ``forces`` ...).
     reference : str
         Label of the reference mode; ``resonance_hz`` its resonance per axis (Hz).
     files : list of str
@@ -57,25 +62,33 @@ class Summary:
     definition: str = modetable.__doc__ or ""
     #: rows {mode, axis, paper, ours, ratio} against the paper's Table 4, when compared
     paper: list[dict[str, Any]] | None = None
+    blrms_bands_hz: list[list[float]] = field(default_factory=list)
+    #: (bag index, axis, TimeFrequency) of the top stage per bag and axis, for the figures
+    timefreq: list[tuple[int, str, timefreq.TimeFrequency]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (no arrays of spectra; those go to the plots)."""
         return jsonable({
             "bags": self.bags, "reference": self.reference, "axes": self.axes,
             "resonance_hz": self.resonance_hz, "config_source": self.config_source,
+            "blrms_bands_hz": self.blrms_bands_hz,
             "table4_definition": " ".join(self.definition.split()),
             "segments": self.segments, "warnings": self.warnings, "files": self.files,
             "paper_comparison": self.paper,
         })
 
     def table(self) -> str:
-        """The mode table as text (see :func:`modetable.format_table`)."""
-        return modetable.format_table(self.segments, self.axes)
+        """The mode table as text (see :func:`modetable.format_table`); an excited segment is
+        named with its excitation."""
+        rows = [{**s, "mode": s.get("segment", s["mode"])} for s in self.segments]
+        return modetable.format_table(rows, self.axes)
 
 
 def analyze(bags: Sequence[str | Path], reference: str = "passive",
             out_dir: str | Path | None = None, config: SystemConfig | None = None,
             progress: Progress | None = None, settle_s: float = SETTLE_S,
+            export: str | None = None,
+            blrms_bands: Sequence[tuple[float, float]] = timefreq.DEFAULT_BANDS,
             paper: bool | None = None) -> Summary:
     """Analyse one or more DCSMS bags mode by mode.
 
@@ -93,6 +106,11 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
         Reading progress per bag.
     settle_s : float
         Time dropped after every mode switch (s).
+    export : str, optional
+        Also write every segment's spectra as ``npz``, ``csv`` or ``mat`` tables into
+        ``out_dir`` (:mod:`.tables`).
+    blrms_bands : sequence of (lo, hi)
+        Bands (Hz) of the band-limited RMS trends and of each segment's ``blrms_mps``.
     paper : bool, optional
         Compare the mode table with the paper's Table 4 (:mod:`.paper`); default: when the
         configuration is 6-DOF (the paper's table is the three-point TEM in X, Y, Z).
@@ -120,15 +138,17 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
         if ref.stamp_ns.size == 0:
             warnings.append(f"{data.path}: no velocity samples")
             continue
-        for seg in split_segments(data.modes, int(ref.stamp_ns[0]), int(ref.stamp_ns[-1]),
-                                  settle_s):
+        segs = split_segments(data.modes, int(ref.stamp_ns[0]), int(ref.stamp_ns[-1]),
+                              settle_s)
+        for seg in split_excited(segs, data.excitation, settle_s):
             work.append((data, seg, cfg))
     axes = _axes(work)
     summary = Summary([str(b) for b in bags], ref_mode.label, axes, warnings=warnings,
-                      config_source=cfg_source)
+                      config_source=cfg_source, blrms_bands_hz=[list(b) for b in blrms_bands])
     results = []
+    models: dict[Any, LoopFrf | None] = {}
     for data, seg, cfg in work:
-        r = _segment(data, seg, cfg, axes, summary)
+        r = _segment(data, seg, cfg, axes, summary, models)
         if r is not None:
             results.append(r)
     _table4(results, ref_mode.label, summary)
@@ -139,9 +159,10 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
                 for s in summary.segments}
         summary.paper = paper_table.comparison(ours, axes)
     if out_dir is not None:
+        summary.timefreq = _timefreq(work, axes, blrms_bands, summary)
         from dcsms_ros.analysis import output
 
-        output.write_all(Path(out_dir), summary, results)
+        output.write_all(Path(out_dir), summary, results, export)
     return summary
 
 
@@ -157,8 +178,9 @@ def _axes(work: list[tuple[BagData, Segment, SystemConfig | None]]) -> list[str]
 
 
 def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[str],
-             summary: Summary) -> dict[str, Any] | None:
-    where = f"{data.path} [{seg.label} @ {seg.switch_ns * 1e-9:.2f} s]"
+             summary: Summary, models: dict[Any, LoopFrf | None]) -> dict[str, Any] | None:
+    where = f"{data.path} [{seg.label}{' excited' if seg.excited else ''} @ " \
+            f"{seg.t0_ns * 1e-9:.2f} s]"
     if seg.duration_s < MIN_SEGMENT_S:
         summary.warnings.append(f"{where}: only {seg.duration_s:.1f} s after settling; skipped")
         return None
@@ -174,40 +196,61 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
     top = stages[-1]
     nper = est.choose_nperseg(al.fs, n)
     bands = est.third_octave_bands(1.0, 80.0)
+    exc_stage = _excited_stage(data) if seg.excited else 0
+    exc_axes = frf.excited_axes(al.excitation, axes)
+    label = seg.label + (f" + excitation {data.excitation.frame_id if data.excitation else ''}."
+                         + "".join(exc_axes) if seg.excited else "")
     js: dict[str, Any] = {
-        "bag": str(data.path), "mode": seg.label, "t_start_s": seg.t0_ns * 1e-9,
+        "bag": str(data.path), "mode": seg.label, "segment": label,
+        "excited": ({"stage": f"stage{exc_stage}", "axes": exc_axes} if seg.excited else None),
+        "t_start_s": seg.t0_ns * 1e-9,
         "t_end_s": seg.t1_ns * 1e-9, "duration_s": seg.duration_s, "fs_hz": al.fs,
         "samples": n, "missing_samples": al.missing, "nperseg": nper,
         "resolution_hz": al.fs / nper, "source": data.source, "axes": {},
     }
+    model = _model(cfg, seg, data.source, models, summary, where)
+    outputs = {s: al.bodies[s] for s in stages}
     arrays: dict[str, Any] = {}
     for a in axes:
         j = AXIS_NAMES.index(a)
         f, p_top = est.psd(al.bodies[top][:, j], al.fs, nper)
         ax: dict[str, Any] = {"rms_mps": float(np.std(al.bodies[top][:, j], dtype=np.float64))}
-        tfs = []
-        if "ground" in al.bodies:
-            tfs = [est.transfer_h1(al.bodies["ground"][:, j], al.bodies[s][:, j], al.fs, nper)
-                   for s in stages]
-            peaks = est.find_resonances(tfs[-1].f, np.abs(tfs[-1].h))
-            ax["averages"] = tfs[-1].averages
+        ground = al.bodies["ground"][:, j] if "ground" in al.bodies else None
+        trans = frf.estimate("transmissibility", ground, outputs, a, al.fs, nper, f"ground.{a}",
+                             "no ground velocity topic")
+        force = (al.excitation[:, j] if al.excitation is not None and a in exc_axes else None)
+        mob = frf.estimate("mobility", force, outputs, a, al.fs, nper,
+                           f"stage{exc_stage}.{a}" if force is not None else "",
+                           "not excited along this axis" if seg.excited else "not excited")
+        if trans.available:
+            peaks = est.find_resonances(trans.tfs[-1].f, np.abs(trans.tfs[-1].h))
+            ax["averages"] = trans.tfs[-1].averages
             ax["tf_peaks_hz"] = [p.f_hz for p in peaks]
         ax["asd_peaks_hz"] = [p.f_hz for p in est.find_resonances(f, np.sqrt(p_top), 6.0,
                                                                   max_peaks=3)]
+        ax["blrms_mps"] = est.band_rms(f, p_top, np.array(
+            [[np.sqrt(lo * hi), lo, hi] for lo, hi in summary.blrms_bands_hz]))
         ax["third_octave_centres_hz"] = bands[:, 0]
         ax["third_octave_rms_mps"] = {}
         ax["vc"] = {}
+        psds = {b: p_top if b == top else est.psd(al.bodies[b][:, j], al.fs, nper)[1]
+                for b in al.bodies}
         for s in stages:
-            fs_, p_s = (f, p_top) if s == top else est.psd(al.bodies[s][:, j], al.fs, nper)
-            rms = est.band_rms(fs_, p_s, bands)
+            rms = est.band_rms(f, psds[s], bands)
             v = evaluate(bands[:, 0], rms)
             ax["third_octave_rms_mps"][s] = rms
             ax["vc"][s] = {"best": v.best, "margin_db": v.margin_db,
                            "worst_band_hz": v.worst_band_hz}
-        an = _analytic(cfg, seg, a, tfs, summary, where)
-        ax["analytic"] = an["json"] if an else None
+        ests = {"transmissibility": trans, "mobility": mob}
+        ax["estimates"] = {k: e.verdict() for k, e in ests.items()}
+        ax["model"] = {}
+        for k, e in ests.items():
+            if model is not None and e.available:
+                frf.attach_model(e, model, a, exc_stage)
+            ax["model"][k] = e.compare()
         js["axes"][a] = ax
-        arrays[a] = {"f": f, "psd": p_top, "tfs": tfs, "analytic": an}
+        arrays[a] = {"f": f, "psd": p_top, "tfs": trans.tfs, "estimates": ests,
+                     "psd_bodies": psds}
     js["forces"] = _forces(data, seg, cfg)
     js["stability"] = _stability(al.bodies, stages, axes, al.fs, summary, where)
     return {"json": js, "arrays": arrays, "top": top}
@@ -231,45 +274,58 @@ def _stability(bodies: dict[str, np.ndarray], stages: list[str], axes: list[str]
     return {"unstable": bool(growing), "growing": growing}
 
 
-def _analytic(cfg: SystemConfig | None, seg: Segment, axis: str, tfs: list[est.TransferEstimate],
-              summary: Summary, where: str) -> dict[str, Any] | None:
-    """Analytic v_pi/v_b on the estimate's grid and the bands where they disagree."""
-    if cfg is None or seg.mode is None or not tfs:
+def _timefreq(work: list[tuple[BagData, Segment, SystemConfig | None]], axes: list[str],
+              bands: Sequence[tuple[float, float]], summary: Summary
+              ) -> list[tuple[int, str, timefreq.TimeFrequency]]:
+    """Spectrogram and BLRMS of each bag's top stage per axis over the whole bag, with the
+    mode switches and the excited segments (s from the bag's first sample)."""
+    out: list[tuple[int, str, timefreq.TimeFrequency]] = []
+    bags: list[BagData] = []
+    for data, _, _ in work:
+        if all(d is not data for d in bags):
+            bags.append(data)
+    for i, data in enumerate(bags):
+        top = max((b for b in data.bodies if b != "ground"), key=lambda s: int(s[5:]))
+        series = data.bodies[top]
+        st = series.stamp_ns
+        if st.size < 64:
+            continue
+        t0 = int(st[0])
+        fs = 1e9 / float(np.median(np.diff(st)))
+        marks = [((ev.stamp_ns - t0) * 1e-9, ev.label) for ev in data.modes]
+        spans = [((seg.t0_ns - t0) * 1e-9, (seg.t1_ns - t0) * 1e-9)
+                 for d, seg, _ in work if d is data and seg.excited]
+        for a in axes:
+            try:
+                tf = timefreq.compute(series.values[:, AXIS_NAMES.index(a)], fs, bands)
+            except DcsmsError as exc:
+                summary.warnings.append(f"{data.path}: no time-frequency view: {exc}")
+                break
+            tf.marks, tf.spans = marks, spans
+            out.append((i, a, tf))
+    return out
+
+
+def _excited_stage(data: BagData) -> int:
+    """The stage (1-based) named by the excitation's frame_id (1 when it names none)."""
+    frame = data.excitation.frame_id if data.excitation is not None else ""
+    return int(frame[5:]) if frame.startswith("stage") and frame[5:].isdigit() else 1
+
+
+def _model(cfg: SystemConfig | None, seg: Segment, source: str,
+           models: dict[Any, LoopFrf | None], summary: Summary, where: str) -> LoopFrf | None:
+    """The discrete loop model of the segment's mode (cached per configuration and mode)."""
+    if cfg is None or seg.mode is None:
         return None
-    try:
-        from dcsms_ros.core import analytics
-
-        model = analytics.transmissibility(cfg, seg.mode, axis, sensors=cfg.sensors.dynamics)
-        est_f = tfs[-1].f
-        h_an = [np.asarray(analytics.freq_response(t, est_f)) for t in model]
-    except Exception as exc:  # noqa: BLE001 - the overlay is optional; the report must go on
-        summary.warnings.append(f"{where}: analytic model unavailable ({type(exc).__name__}: "
-                                f"{exc}); no overlay")
-        return None
-    tf = tfs[-1]
-    sel = (tf.f >= COMPARE_RANGE_HZ[0]) & (tf.f <= COMPARE_RANGE_HZ[1])
-    with np.errstate(divide="ignore"):
-        err = 20 * np.log10(np.abs(tf.h)) - 20 * np.log10(np.abs(h_an[-1]))
-    noise = est.h1_random_error(tf.coherence, tf.averages)
-    good = sel & (noise <= MAX_RANDOM_ERROR) & np.isfinite(err)
-    bad = good & (np.abs(err) > DISAGREE_DB)
-    flagged = _runs(tf.f, bad)
-    js = {"compared_bins": int(good.sum()),
-          "max_abs_error_db": float(np.max(np.abs(err[good]))) if good.any() else None,
-          "rms_error_db": float(np.sqrt(np.mean(err[good] ** 2))) if good.any() else None,
-          "disagree_bands_hz": flagged}
-    return {"json": js, "h": h_an, "flagged": flagged}
-
-
-def _runs(f: np.ndarray, mask: np.ndarray) -> list[list[float]]:
-    """Contiguous runs of ``mask`` as [f_lo, f_hi] (Hz)."""
-    idx = np.flatnonzero(mask)
-    if idx.size == 0:
-        return []
-    breaks = np.flatnonzero(np.diff(idx) > 1)
-    starts = np.r_[idx[0], idx[breaks + 1]]
-    ends = np.r_[idx[breaks], idx[-1]]
-    return [[float(f[s]), float(f[e])] for s, e in zip(starts, ends)]
+    key = (id(cfg), seg.mode, source)
+    if key not in models:
+        try:
+            models[key] = LoopFrf(cfg, seg.mode, truth=source == "truth")
+        except Exception as exc:  # noqa: BLE001 - the overlay is optional; the report goes on
+            summary.warnings.append(f"{where}: loop model unavailable ({type(exc).__name__}: "
+                                    f"{exc}); no model overlay")
+            models[key] = None
+    return models[key]
 
 
 def _forces(data: BagData, seg: Segment, cfg: SystemConfig | None) -> list[dict[str, Any]]:
@@ -310,6 +366,12 @@ def _table4(results: list[dict[str, Any]], ref_label: str, summary: Summary) -> 
     if not refs:
         summary.warnings.append(f"no {ref_label} segment: Table 4 not normalised")
         return
+    quiet = [r for r in refs if not r["json"]["excited"]]
+    if quiet:
+        refs = quiet  # an excitation is not the disturbance the paper's table compares
+    else:
+        summary.warnings.append(f"every {ref_label} segment is excited: Table 4 is normalised "
+                                "to a response that includes the excitation")
     ref = max(refs, key=lambda r: r["json"]["duration_s"])
     for a in summary.axes:
         f, p = ref["arrays"][a]["f"], ref["arrays"][a]["psd"]

@@ -18,7 +18,7 @@ from dcsms_ros.errors import DcsmsError
 
 #: Sub-command modules, in the order ``dcsms --help`` lists them.
 SUBCOMMANDS: tuple[str, ...] = ("model", "tune", "sim", "up", "mode", "record", "analyze",
-                                "demo", "params")
+                                "fit", "export", "demo", "params")
 
 #: Exit status of a usage or configuration error (the argparse convention).
 EXIT_USAGE = 2

@@ -9,6 +9,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from dcsms_ros.errors import DcsmsError
+
 #: Bags with fewer messages finish in about a second: no progress bar for them.
 PROGRESS_MIN_MESSAGES = 200_000
 
@@ -28,6 +30,13 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", action="store_true", help="print summary JSON on stdout")
     p.add_argument("--config", type=Path, default=None, metavar="FILE",
                    help="params YAML overriding the configuration recorded in the bag")
+    p.add_argument("--export", choices=("npz", "csv", "mat"), default=None,
+                   help="also write every segment's spectra (frequency axis, complex H1 and "
+                   "coherence, ASDs, one-third-octave RMS) into --out DIR as npz, csv or mat "
+                   "tables")
+    p.add_argument("--blrms", default="1-3,3-10,10-30", metavar="BANDS",
+                   help="bands (Hz) of the band-limited RMS trends in the report and of each "
+                   "segment's blrms_mps (default 1-3,3-10,10-30)")
     p.add_argument("--settle", type=float, default=1.0, metavar="S",
                    help="seconds dropped after each mode switch (default 1.0)")
     p.add_argument("--paper", action="store_true", default=None,
@@ -39,10 +48,15 @@ class _ProgressBar:
     """A one-line text bar on stderr (only when stderr is a terminal or the bag is long)."""
 
     def __init__(self, stream: Any = None) -> None:
-        # looked up when used: a stream bound at import time may be closed by then (a capture)
-        self.stream = stream if stream is not None else sys.stderr
+        # None: the sys.stderr of the moment (not the one of import time, which a caller
+        # such as pytest may have replaced and closed since)
+        self._stream = stream
         self.last = 0.0
         self.shown = False
+
+    @property
+    def stream(self) -> Any:
+        return self._stream if self._stream is not None else sys.stderr
 
     def __call__(self, done: int, total: int) -> None:
         if total < PROGRESS_MIN_MESSAGES:
@@ -64,14 +78,31 @@ def _num(x: float | None) -> str:
     return "-" if x is None or not math.isfinite(x) else f"{x:.3f}"
 
 
+def _estimates(ests: dict[str, Any]) -> str:
+    """``mobility estimated (stage1 815, stage2 260 of 815 bins), transmissibility ...``."""
+    parts = []
+    for kind, v in ests.items():
+        if v["status"] == "unavailable":
+            parts.append(f"{kind} unavailable ({v['reason']})")
+            continue
+        bins = ", ".join(f"{s} {n}" for s, n in v["usable_bins"].items())
+        parts.append(f"{kind} {v['status']} ({bins} of {v['band_bins']} bins)")
+    return ", ".join(parts)
+
+
 def run(args: argparse.Namespace) -> int:
     """Handler: analyse, print the mode table (or JSON), return 0."""
     from dcsms_ros.analysis.report import analyze, dumps
+    from dcsms_ros.analysis.timefreq import parse_bands
     from dcsms_ros.core.config import load_config
 
+    if args.export is not None and args.out is None:
+        raise DcsmsError("--export needs --out DIR (the tables are written there)")
+    bands = parse_bands(args.blrms)
     cfg = load_config(args.config) if args.config is not None else None
     summary = analyze(args.bags, reference=args.reference, out_dir=args.out, config=cfg,
-                      progress=_ProgressBar(), settle_s=args.settle, paper=args.paper)
+                      progress=_ProgressBar(), settle_s=args.settle, export=args.export,
+                      blrms_bands=bands, paper=args.paper)
     if args.json:
         print(dumps(summary))
         return 0
@@ -84,6 +115,9 @@ def run(args: argparse.Namespace) -> int:
         print("paper Table 4 (ours / paper): " + "; ".join(
             f"{r['mode']} {r['axis']} {r['paper']:.3f}/{_num(r['ours'])}" for r in summary.paper)
             + f"; {within(summary.paper)} of {len(summary.paper)} within +-30 %")
+    for seg in summary.segments:
+        print(f"  {seg['segment']}: " + "; ".join(
+            f"{a} {_estimates(seg['axes'][a]['estimates'])}" for a in summary.axes))
     for seg in summary.segments:
         vc = "; ".join(f"{a}: " + ", ".join(f"{t} {v['best'] or 'none'}"
                                            for t, v in seg["axes"][a]["vc"].items())

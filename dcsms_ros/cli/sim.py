@@ -49,6 +49,17 @@ def register(subparsers: Any) -> None:
                    help="replay a recorded ground velocity (TwistStamped; default topic "
                    "/dcsms/velocity/ground, else /dcsms/truth/ground) instead of noise, "
                    "resampled to the control rate")
+    p.add_argument("--excite", action="append", default=[], metavar="SPEC",
+                   help="actuator excitation added to the controllers' forces, e.g. "
+                   "stage1.z:white:5 (5 N RMS, 0.5-100 Hz) or stage2.z:sweep:20:0.5-50 (20 N "
+                   "sweep) or stage1.z:stepped:10:1-50:12; repeatable, one stage per run; "
+                   "recorded on /dcsms/force/excitation")
+    p.add_argument("--plant-set", action="append", default=[], metavar="NAME=VALUE",
+                   dest="plant_overrides",
+                   help="simulate a plant that differs from the configuration (masses, "
+                   "suspensions, geophone dynamics, disturbances): the controllers and the "
+                   "recorded /dcsms/config keep the configured values, as on a rig whose true "
+                   "parameters are unknown (batch only; repeatable)")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                    help="rosbag2 storage plugin (default: mcap)")
     p.add_argument("--clock", action="store_true",
@@ -101,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
     mode = parse_mode(args.mode)
     schedule = parse_schedule(args.schedule)
     cfg = load_cfg(args)
+    specs = parse_excitations(cfg, args.excite)
+    plant = plant_config(cfg, args.plant_overrides)
     if args.engine == "graph":
         return _graph(args)
     ground = None
@@ -111,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
 
             bag, topic = parse_ground_spec(args.ground_from)
             ground = load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)
-        res, counts, t_sim, t_write = _batch(args, cfg, mode, schedule, ground)
+        res, counts, t_sim, t_write = _batch(args, cfg, mode, schedule, ground, specs, plant)
     for w in caught:
         print(f"dcsms: warning: {w.message}", file=sys.stderr)
     total = sum(counts.values())
@@ -124,16 +137,43 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def parse_excitations(cfg: Any, texts: Sequence[str]) -> list[Any]:
+    """``--excite`` texts -> checked :class:`~dcsms_ros.core.excitation.ExcitationSpec` list."""
+    from dcsms_ros.core.excitation import check_specs, parse_spec
+
+    specs = [parse_spec(t) for t in texts]
+    check_specs(cfg, specs)
+    return specs
+
+
+def plant_config(cfg: Any, texts: Sequence[str]) -> Any:
+    """The plant of ``--plant-set NAME=VALUE`` overrides (None without any), checked against
+    ``cfg`` (:func:`~dcsms_ros.core.simulator.check_plant`)."""
+    from dcsms_ros.core.config import parse_override, with_overrides
+    from dcsms_ros.core.simulator import check_plant
+
+    if not texts:
+        return None
+    plant = with_overrides(cfg, dict(parse_override(t) for t in texts))
+    check_plant(cfg, plant)
+    return plant
+
+
 def _batch(args: argparse.Namespace, cfg: Any, mode: Any, schedule: Sequence[Any],
-           ground: Any) -> tuple[Any, dict[str, int], float, float]:
+           ground: Any, specs: Sequence[Any], plant: Any
+           ) -> tuple[Any, dict[str, int], float, float]:
     from dcsms_ros.analysis.export import write_result_bag
     from dcsms_ros.core.engine import simulate
+    from dcsms_ros.core.excitation import excitation_signal
 
     show = args.duration * cfg.plant.rate_hz > PROGRESS_MIN_STEPS
     t0 = time.perf_counter()
     bar = _Bar("simulate", show)
+    steps = int(round(args.duration * cfg.plant.rate_hz))
+    seed = cfg.disturbance.seed if args.seed is None else args.seed
+    excite = excitation_signal(cfg, specs, steps, seed) if specs else None
     res = simulate(cfg, mode, args.duration, seed=args.seed, schedule=schedule, ground=ground,
-                   progress=bar)
+                   progress=bar, excite=excite, plant=plant)
     bar(1.0)
     t1 = time.perf_counter()
     counts = write_result_bag(res, args.out, args.storage, clock=args.clock,
@@ -145,12 +185,15 @@ def _graph(args: argparse.Namespace) -> int:
     """The ROS graph in lockstep, recorded: ``dcsms up --lockstep --record OUT``.
 
     ``--seed`` becomes ``--set disturbance.seed=N`` (the batch engine's default seed too). The
-    ``--ground-from`` becomes the plant's ``ground_from`` parameter. The graph cannot take a
-    mode schedule (switches go through the services at wall-clock times), so that is refused.
+    ``--ground-from`` becomes the plant's ``ground_from`` parameter, ``--excite`` the excitation
+    node (active from sample 0, so the graph adds what the batch engine adds). The graph cannot
+    take a mode schedule (switches go through the services at wall-clock times) or a plant that
+    differs from the configuration, so those are refused.
     """
     if importlib.util.find_spec("dcsms_ros.cli.up") is None:
         raise DcsmsError("--engine graph: not available (needs `dcsms up`); use --engine batch")
-    for flag, value in (("--schedule", args.schedule), ("--clock", args.clock)):
+    for flag, value in (("--schedule", args.schedule), ("--clock", args.clock),
+                        ("--plant-set", args.plant_overrides)):
         if value:
             raise DcsmsError(f"--engine graph: {flag} is not supported yet; use --engine batch")
     if args.storage != "mcap":
@@ -167,6 +210,8 @@ def _graph(args: argparse.Namespace) -> int:
         argv += ["--set", f"disturbance.seed={args.seed}"]
     if args.ground_from:
         argv += ["--ground-from", args.ground_from]
+    for spec in args.excite:  # the excitation node, active from sample 0 as in the batch run
+        argv += ["--excite", spec]
     t0 = time.perf_counter()
     status = main(argv)
     if status == 0:
@@ -175,4 +220,4 @@ def _graph(args: argparse.Namespace) -> int:
     return status
 
 
-__all__ = ["parse_schedule", "register", "run"]
+__all__ = ["parse_excitations", "parse_schedule", "plant_config", "register", "run"]

@@ -46,7 +46,7 @@ class Child:
 
 
 #: The per-sample control path: the processes ``--rt-priority`` puts under SCHED_FIFO.
-CONTROL_PATH = ("plant_simulator", "sensor_decoupling", "fb_", "ff_")
+CONTROL_PATH = ("plant_simulator", "sensor_decoupling", "fb_", "ff_", "excitation")
 
 
 def set_rt_priority(kids: list[Child], priority: int) -> None:
@@ -59,17 +59,21 @@ def set_rt_priority(kids: list[Child], priority: int) -> None:
             kid.env[RT_PRIORITY_ENV] = str(priority)
 
 
-def stream_topics(n: int) -> list[str]:
+def stream_topics(n: int, excitation: bool = False) -> list[str]:
     """Every per-sample topic of an ``n``-stage graph (for observers that must not miss one)."""
     bodies = topics.body_names(n)
     return ([topics.SENSORS_RAW, topics.ACTUATORS_APPLIED]
             + [topics.velocity_topic(b) for b in bodies] + [topics.truth_topic(b) for b in bodies]
-            + [topics.force_topic(c) for c in controller_ids(n)])
+            + [topics.force_topic(c) for c in controller_ids(n)]
+            + ([topics.EXCITATION] if excitation else []))
 
 
 def params_document(cfg: SystemConfig, schedule: str, mode: Mode, duration_s: float,
-                    observers: list[str], ground_from: str = "") -> dict[str, Any]:
-    """The params file of one run: shared configuration plus per-node settings."""
+                    observers: list[str], ground_from: str = "",
+                    excite: list[str] | None = None,
+                    excite_active: bool = True) -> dict[str, Any]:
+    """The params file of one run: shared configuration plus per-node settings; ``excite``
+    (``--excite`` specifications) adds the excitation node, active from the start or not."""
     n = cfg.plant.num_stages
     # empty arrays have no type in a params file; the nodes default them to empty anyway
     flat = {k: v for k, v in (cfg.params or {}).items() if not (isinstance(v, list) and not v)}
@@ -90,13 +94,19 @@ def params_document(cfg: SystemConfig, schedule: str, mode: Mode, duration_s: fl
         if cid.startswith("fb_"):
             p["stage"] = int(cid.rsplit("stage", 1)[1])
         per_node[cid] = p
+    if excite:
+        per_node["plant_simulator"]["excitation"] = True
+        per_node[topics.EXCITATION_ID] = {"spec": list(excite), "active": excite_active,
+                                          "duration_s": float(duration_s),
+                                          "use_sim_time": True}
     for name, p in per_node.items():
         doc[f"{topics.NAMESPACE}/{name}"] = {"ros__parameters": p}
     return doc
 
 
-def graph_children(n: int, params_file: Path) -> list[Child]:
-    """The node processes of an ``n``-stage graph (argv only, not started)."""
+def graph_children(n: int, params_file: Path, excitation: bool = False) -> list[Child]:
+    """The node processes of an ``n``-stage graph (argv only, not started), with the
+    excitation node when asked."""
     def argv(executable: str, name: str) -> list[str]:
         return [sys.executable, "-m", f"dcsms_ros.nodes.{executable}", "--ros-args",
                 "-r", f"__node:={name}", "-r", f"__ns:={topics.NAMESPACE}",
@@ -106,6 +116,8 @@ def graph_children(n: int, params_file: Path) -> list[Child]:
     kids += [Child(c, argv("feedback_controller" if c.startswith("fb_") else
                            "feedforward_controller", c)) for c in controller_ids(n)]
     kids.append(Child("sensor_decoupling", argv("sensor_decoupling", "sensor_decoupling")))
+    if excitation:
+        kids.append(Child(topics.EXCITATION_ID, argv("excitation", topics.EXCITATION_ID)))
     kids.append(Child("plant_simulator", argv("plant_simulator", "plant_simulator")))
     return kids
 
@@ -180,6 +192,13 @@ def register(subparsers: Any) -> None:
     p.add_argument("--ground-from", default="", metavar="BAG[:TOPIC]",
                    help="replay a recorded ground velocity (TwistStamped, resampled to the "
                    "control rate) instead of white noise")
+    p.add_argument("--excite", action="append", default=[], metavar="SPEC",
+                   help="add the excitation node (as `dcsms sim --excite`, repeatable): the "
+                   "plant sums /dcsms/force/excitation with the controllers' forces; active "
+                   "from the start unless --excite-off; /dcsms/excitation/enable starts and "
+                   "stops it")
+    p.add_argument("--excite-off", action="store_true",
+                   help="with --excite: start the excitation inactive")
     p.add_argument("--wait-for-subscribers", nargs="+", default=[], metavar="TOPIC",
                    help="before the first sample, wait for a subscriber outside the graph on "
                    "each TOPIC (e.g. a probe)")
@@ -209,6 +228,12 @@ def run(args: argparse.Namespace) -> int:
 
         bag, topic = parse_ground_spec(args.ground_from)
         load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)
+    if args.excite:  # one line here, not inside the node process
+        from dcsms_ros.cli.sim import parse_excitations
+
+        parse_excitations(cfg, args.excite)
+    elif args.excite_off:
+        raise DcsmsError("--excite-off needs --excite SPEC")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     log_dir = args.log_dir or Path(tempfile.mkdtemp(prefix="dcsms-up-"))
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -220,14 +245,14 @@ def run(args: argparse.Namespace) -> int:
 
         kids.append(Child("recorder", recorder_command(args.record, args.record_topics)))
         if args.schedule == "lockstep":  # lockstep must not outrun the recorder's start
-            streams = stream_topics(n)
+            streams = stream_topics(n, bool(args.excite))
             observers += [t for t in streams if not args.record_topics
                           or t in args.record_topics]
     params_file = log_dir / "params.yaml"
     params_file.write_text(yaml.safe_dump(params_document(
-        cfg, args.schedule, mode, args.duration or 0.0, observers, args.ground_from),
-        sort_keys=False))
-    graph = graph_children(n, params_file)
+        cfg, args.schedule, mode, args.duration or 0.0, observers, args.ground_from,
+        args.excite, not args.excite_off), sort_keys=False))
+    graph = graph_children(n, params_file, bool(args.excite))
     if args.rt_priority:
         set_rt_priority(graph, args.rt_priority)
     stop_flag = {"signal": 0}

@@ -20,8 +20,9 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.core.modes import Mode, controller_ids, controller_stage, enabled_controllers
-from dcsms_ros.core.simulator import PlantSimulator
+from dcsms_ros.core.simulator import PlantSimulator, check_plant
 from dcsms_ros.core.trip import Trip, TripChecker
+from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
 
@@ -51,6 +52,9 @@ class SimResult:
         The instability trip of this run (:mod:`.trip`), if one happened.
     refused : list of (sample index, label)
         Scheduled switches refused because a trip was latched (as the mode-switch node does).
+    excitation : ndarray, shape (K, N, dof), or None
+        The excitation wrench added to each stage's controller wrenches (N, N*m), zero from a
+        trip on; None when the run had none.
     """
 
     cfg: SystemConfig
@@ -66,13 +70,15 @@ class SimResult:
     counters: dict[str, int] = field(default_factory=dict)
     trip: Trip | None = None
     refused: list[tuple[int, str]] = field(default_factory=list)
+    excitation: Array | None = None
 
 
 def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None = None,
              schedule: Sequence[tuple[float, Mode]] = (), ground: Array | None = None,
              progress: Callable[[float], None] | None = None,
              fast: bool | None = None, table: Array | None = None,
-             trip: bool = True) -> SimResult:
+             trip: bool = True, excite: Array | None = None,
+             plant: SystemConfig | None = None) -> SimResult:
     """Run the closed loop for ``duration_s`` seconds.
 
     Parameters
@@ -101,12 +107,20 @@ def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None 
         Wrenches added to the table forces of the first K samples (N, N*m).
     trip : bool
         Run the instability trip (:mod:`.trip`) as the mode-switch node does (default True).
+    excite : ndarray, shape (K, N, dof), optional
+        Excitation wrench per stage for the first K samples (N, N*m; :mod:`.excitation`),
+        added to the controllers' wrenches before allocation and clipping; off from a trip on.
+    plant : SystemConfig, optional
+        The physical plant (masses, suspensions, geophones, disturbances) when it differs from
+        ``cfg``, which then only sets up the controllers, the decoupling (its low-frequency
+        extension) and the trip, as on a rig whose true parameters are not known exactly
+        (:func:`.simulator.check_plant`).
     """
     steps = int(round(duration_s * cfg.plant.rate_hz))
-    res = Simulation(cfg, mode, seed, schedule, ground, table, trip, fast).run(steps, progress)
+    args = (cfg, mode, seed, schedule, ground, table, trip)
+    res = Simulation(*args, fast=fast, excite=excite, plant=plant).run(steps, progress)
     if res is None:
-        res = Simulation(cfg, mode, seed, schedule, ground, table, trip, False).run(steps,
-                                                                                    progress)
+        res = Simulation(*args, fast=False, excite=excite, plant=plant).run(steps, progress)
     assert res is not None
     return res
 
@@ -121,10 +135,15 @@ class Simulation:
     def __init__(self, cfg: SystemConfig, mode: Mode, seed: int | None = None,
                  schedule: Sequence[tuple[float, Mode]] = (), ground: Array | None = None,
                  table: Array | None = None, trip: bool = True,
-                 fast: bool | None = None) -> None:
+                 fast: bool | None = None, excite: Array | None = None,
+                 plant: SystemConfig | None = None) -> None:
         self.cfg = cfg
         n = cfg.plant.num_stages
-        self.sim = PlantSimulator(cfg, seed=seed, ground=ground, table=table)
+        if plant is not None:
+            check_plant(cfg, plant)
+        self.sim = PlantSimulator(plant or cfg, seed=seed, ground=ground, table=table)
+        self.excite = _excite_array(cfg, excite)
+        self._exc_stop: int | None = None  # first sample without excitation (a trip)
         self.dec = Decoupler(cfg)
         active = enabled_controllers(mode, n)
         ids = controller_ids(n)
@@ -168,10 +187,24 @@ class Simulation:
         return checker.push(velocity[:, 1:])
 
     def _latch(self, trip: Trip) -> None:
-        """Every controller off from the sample after the tripping checkpoint."""
+        """Every controller off from the sample after the tripping checkpoint, and the
+        excitation stopped there."""
         self.trip = trip
         self._targets(frozenset())
         self.modes.append((trip.sample + 1, Mode.PASSIVE.label))
+        self._exc_stop = trip.sample + 1
+
+    def _excite_rows(self, k0: int, m: int) -> Array | None:
+        """Excitation of samples k0 .. k0+m-1, shape (m, N, dof) (zero past the given record
+        and from a trip on); None when the run has none."""
+        if self.excite is None:
+            return None
+        out = np.zeros((m, *self.excite.shape[1:]))
+        stop = self.excite.shape[0] if self._exc_stop is None else min(self._exc_stop,
+                                                                       self.excite.shape[0])
+        if k0 < stop:
+            out[:min(m, stop - k0)] = self.excite[k0:min(k0 + m, stop)]
+        return out
 
     def run(self, steps: int, progress: Callable[[float], None] | None = None
             ) -> SimResult | None:
@@ -193,6 +226,7 @@ class Simulation:
             return None
         truth, raw, vel, wrench_all, applied = out
         wrench = {cid: wrench_all[i] for i, cid in enumerate(self.ctrls)}
+        exc = self._excite_rows(k0, steps)
         counters = {"nonfinite_inputs": self.sim.nonfinite_inputs,
                     "saturations": self.sim.saturations}
         t = np.arange(k0, k0 + steps, dtype=np.float64) * self.cfg.plant.dt
@@ -200,7 +234,7 @@ class Simulation:
         return SimResult(self.cfg, t, truth, raw, vel, wrench, applied, modes,
                          [c.name for c in self.sim.channels],
                          list(self.sim.actuator_names), counters, self.trip,
-                         self.refused[refused0:])
+                         self.refused[refused0:], exc)
 
     def _run_objects(self, steps: int, out: tuple[Array, ...],
                      progress: Callable[[float], None] | None) -> bool:
@@ -221,7 +255,8 @@ class Simulation:
                 w = c.step(tw[self.body[cid]])
                 wrench_all[i, k] = w
                 w_out[cid] = w
-            applied[k] = sim.advance(w_out)
+            exc = self._excite_rows(self.k, 1)
+            applied[k] = sim.advance(w_out, None if exc is None else exc[0])
             self.k += 1
             if (self.checker is not None and self.trip is None and self.k % check == 0):
                 _, trip = self._judge(vel[pushed:k + 1], self.checker)
@@ -245,7 +280,7 @@ class Simulation:
                          *(e - k0 for e, _ in self.events if 0 < e - k0 < steps)})
         for b0, b1 in itertools.pairwise(bounds):
             self._apply_events()
-            inputs = loop.draw(b1 - b0)
+            inputs = loop.draw(b1 - b0, self._excite_rows(self.k, b1 - b0))
             if not self._segment(loop, inputs, _rows(out, b0, b1)):
                 return False
             if progress is not None and (b1 - 1) % every == 0:
@@ -278,11 +313,26 @@ class Simulation:
             return False
         self.k += used
         self._latch(trip)
+        inputs.excite[used:] = 0.0  # no excitation while tripped
         rest = m - used
         if rest and loop.run(inputs.rows(used, m), _rows(out, used, m)) != rest:
             return False
         self.k += rest
         return True
+
+
+def _excite_array(cfg: SystemConfig, excite: Array | None) -> Array | None:
+    """``excite`` as a finite float array (K, N, dof), or None."""
+    if excite is None:
+        return None
+    e = np.asarray(excite, dtype=np.float64)
+    shape = (cfg.plant.num_stages, cfg.plant.dof)
+    if e.ndim != 3 or e.shape[1:] != shape:
+        raise ConfigError(f"excitation: expected shape (K, {shape[0]}, {shape[1]}), got "
+                          f"{e.shape}")
+    if not np.isfinite(e).all():
+        raise ConfigError("excitation: contains NaN or Inf")
+    return e
 
 
 def _rows(out: tuple[Array, ...], i0: int, i1: int) -> tuple[Array, ...]:

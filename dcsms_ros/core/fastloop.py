@@ -53,7 +53,7 @@ def _finite(v):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
-def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, noise,
+def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, noise, excite,
               out):  # type: ignore[no-untyped-def]
     """Run samples ``k0 <= k < k1``; returns ``k1``, or the first sample with a non-finite
     value (the caller then reruns the object path, which owns the fault handling).
@@ -68,6 +68,7 @@ def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, nois
     fade : (n (nc,), k (nc,), on (nc,)) integer arrays
     alloc : (pinvs tuple, limits (N,), forces tuple, totals (N, dof), counters (2,))
     ground, dist, noise : (m, dof), (m, N*dof), (m, n_ch) rows of samples k0..k1-1
+    excite : (m, N*dof) excitation wrenches added after the controllers' (m x 0: none)
     out : (truth (K, N+1, dof), raw (K, n_ch), vel (K, N+1, dof), wrench (nc, K, dof),
            applied (K, n_act))
     """
@@ -84,6 +85,7 @@ def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, nois
     nst = totals.shape[0]
     nch = chv.shape[0]
     has_noise = noise.shape[1] == nch
+    has_excite = excite.shape[1] == nst * dof
     nc = climit.shape[0]
     for k in range(k0, k1):
         r = k - k0
@@ -150,6 +152,10 @@ def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, nois
         for c in range(nc):
             for j in range(dof):
                 totals[cstage[c], j] += wbuf[c, j]
+        if has_excite:
+            for i in range(nst):
+                for j in range(dof):
+                    totals[i, j] += excite[r, i * dof + j]
         for j in range(dof):
             u[j] = ground[r, j]
         pos = dof

@@ -49,15 +49,19 @@ def _sos_arrays(f: Any) -> tuple[Array, ...]:
 
 
 class Inputs:
-    """Disturbances, replayed ground and geophone noise of a block of samples, as drawn by
-    the objects: ``ground`` (m, dof), ``table`` (m, N*dof), ``noise`` (m, n_ch or 0)."""
+    """Disturbances, replayed ground, geophone noise and excitation of a block of samples, as
+    drawn by the objects: ``ground`` (m, dof), ``table`` (m, N*dof), ``noise`` (m, n_ch or 0),
+    ``excite`` (m, N*dof, or m x 0 for a run without excitation)."""
 
-    def __init__(self, ground: Array, table: Array, noise: Array) -> None:
+    def __init__(self, ground: Array, table: Array, noise: Array,
+                 excite: Array | None = None) -> None:
         self.ground, self.table, self.noise = ground, table, noise
+        self.excite = np.zeros((ground.shape[0], 0)) if excite is None else excite
 
     def rows(self, i0: int, i1: int) -> Inputs:
         """Rows ``i0 .. i1-1`` (views)."""
-        return Inputs(self.ground[i0:i1], self.table[i0:i1], self.noise[i0:i1])
+        return Inputs(self.ground[i0:i1], self.table[i0:i1], self.noise[i0:i1],
+                      self.excite[i0:i1])
 
 
 class FastLoop:
@@ -117,9 +121,11 @@ class FastLoop:
         """Fader targets of every controller (a mode switch)."""
         self.fade[2][:] = [cid in on for cid in self.ids]
 
-    def draw(self, m: int) -> Inputs:
-        """The objects' inputs for the next ``m`` samples."""
+    def draw(self, m: int, excite: Array | None = None) -> Inputs:
+        """The objects' inputs for the next ``m`` samples; ``excite`` (m, N, dof) is the
+        excitation of those samples (None: the run has none)."""
         sim = self.sim
+        assert sim.disturbances is not None
         if self._first:  # sample 0 was drawn when the simulator was built
             self._first = False
             g, w = sim.disturbances.block(m - 1)
@@ -130,7 +136,8 @@ class FastLoop:
         noise = sim.geophones.noise_block(m)
         if sim.geophones.noise_std <= 0.0:
             noise = np.zeros((m, 0))
-        return Inputs(g, _c(w.reshape(m, -1)), noise)
+        exc = None if excite is None else _c(np.reshape(excite, (m, -1)))
+        return Inputs(g, _c(w.reshape(m, -1)), noise, exc)
 
     def snapshot(self) -> list[Array]:
         """Copies of every state the kernel advances."""
@@ -149,7 +156,7 @@ class FastLoop:
         m = inputs.ground.shape[0]
         return int(run_block(0, m, self.plant, self.geo, self.ext, self.dec, self.ctl,
                              self.fade, self.alloc, inputs.ground, inputs.table, inputs.noise,
-                             out))
+                             inputs.excite, out))
 
     def sync(self, k: int) -> None:
         """Tell the plant simulator it is at sample ``k`` and copy the saturation count."""

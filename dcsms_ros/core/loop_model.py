@@ -31,7 +31,7 @@ from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.core.filters import SosFilter, sos_state_space
 from dcsms_ros.core.modes import Mode, controller_ids, controller_stage, enabled_controllers
-from dcsms_ros.core.simulator import PlantSimulator
+from dcsms_ros.core.simulator import PlantSimulator, check_plant
 
 Array = NDArray[np.float64]
 CArray = NDArray[np.complex128]
@@ -121,7 +121,8 @@ def _filter_states(f: SosFilter) -> int:
     return 2 * f.sections * f.channels
 
 
-def loop_model(cfg: SystemConfig, mode: Mode, breaks: Sequence[Break] = ()) -> LoopModel:
+def loop_model(cfg: SystemConfig, mode: Mode, breaks: Sequence[Break] = (),
+               plant: SystemConfig | None = None) -> LoopModel:
     """The discrete closed loop of ``mode`` as the batch engine runs it (module docstring).
 
     Parameters
@@ -131,6 +132,9 @@ def loop_model(cfg: SystemConfig, mode: Mode, breaks: Sequence[Break] = ()) -> L
         Its controllers are at full gain; the others contribute nothing.
     breaks : sequence of Break
         Controller outputs to open (loop gains, margins).
+    plant : SystemConfig, optional
+        The physical plant and its geophones when they differ from ``cfg`` (``simulate``'s
+        ``plant``): the controllers and the decoupling's extension still come from ``cfg``.
 
     Returns
     -------
@@ -138,7 +142,9 @@ def loop_model(cfg: SystemConfig, mode: Mode, breaks: Sequence[Break] = ()) -> L
         States: the plant's, then every filter's delays; states that stay zero whatever the
         input (the unused delay of a first-order section) are removed.
     """
-    sim = PlantSimulator(cfg, seed=0)
+    if plant is not None:
+        check_plant(cfg, plant)
+    sim = PlantSimulator(plant or cfg, seed=0, disturbances=False)
     dec = Decoupler(cfg)
     n, dof = cfg.plant.num_stages, cfg.plant.dof
     on = enabled_controllers(mode, n)
@@ -149,8 +155,8 @@ def loop_model(cfg: SystemConfig, mode: Mode, breaks: Sequence[Break] = ()) -> L
         if br.controller not in ctrls or br.axis not in ctrls[br.controller].tfs:
             raise ValueError(f"cannot break {br.controller} axis {br.axis}: not active in "
                              f"{mode.label}")
-    plant = sim.plant
-    nxp = plant.x.size
+    dplant = sim.plant
+    nxp = dplant.x.size
     geo, ext = sim.geophones.filter, dec.extension
     n_ch = len(sim.channels)
     n_act = sim.num_actuators
@@ -172,7 +178,7 @@ def loop_model(cfg: SystemConfig, mode: Mode, breaks: Sequence[Break] = ()) -> L
     bld = _Builder(nx, pos)
     # true twists [ground, stage 1..N] of sample k
     tx, tu = bld.zeros((n + 1) * dof)
-    tx[dof:, :nxp] = plant.ss.c
+    tx[dof:, :nxp] = dplant.ss.c
     tu[:dof, inputs["ground"]] = np.eye(dof)
     chan = sim.channel_matrix
     raw_x, raw_u = bld.filters(geo.coefficients(), offsets[0], (chan @ tx, chan @ tu))
@@ -213,9 +219,9 @@ def loop_model(cfg: SystemConfig, mode: Mode, breaks: Sequence[Break] = ()) -> L
     ux[dof:dof + n_act], uu[dof:dof + n_act] = fx, fu
     uu[:dof, inputs["ground"]] = np.eye(dof)
     uu[dof + n_act:, inputs["table"]] = np.eye(n * dof)
-    bld.a[:nxp, :nxp] += plant.ss.a
-    bld.a[:nxp] += plant.ss.b @ ux
-    bld.b[:nxp] += plant.ss.b @ uu
+    bld.a[:nxp, :nxp] += dplant.ss.a
+    bld.a[:nxp] += dplant.ss.b @ ux
+    bld.b[:nxp] += dplant.ss.b @ uu
     outs = [("stage", tx[dof:], tu[dof:]), ("velocity", vx, vu), ("force", fx, fu),
             ("return", rx, ru)]
     c = np.vstack([o[1] for o in outs])

@@ -17,11 +17,44 @@ from dcsms_ros.core.disturbance import Disturbances
 from dcsms_ros.core.model import DiscretePlant, discretize, plant_state_space
 from dcsms_ros.core.modes import controller_stage
 from dcsms_ros.core.sensors import GeophoneArray, channel_layout, channel_matrix
+from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
 
 #: Stream id of the geophone self-noise, kept apart from the disturbance streams of the seed.
 _SENSOR_STREAM = 7
+
+
+#: Parameters a simulated plant may hold apart from the configuration the controllers run with
+#: (``dcsms sim --plant-set``): the physics, the geophone dynamics and the disturbances, never the
+#: structure (stages, fidelity, rate, transducer layout) or the controllers.
+PLANT_STAGE_KEYS = ("mass", "stiffness", "damping", "inertia", "mounts.position",
+                    "mounts.stiffness", "mounts.damping")
+PLANT_KEYS = ("sensors.natural_frequency_hz", "sensors.damping_ratio", "sensors.noise_asd")
+
+
+def plant_parameter(name: str) -> bool:
+    """True for a dotted name that :func:`check_plant` lets a plant hold apart."""
+    head, _, rest = name.partition(".")
+    if head.startswith("stage") and head[5:].isdigit():
+        return rest in PLANT_STAGE_KEYS
+    return name in PLANT_KEYS or head == "disturbance"
+
+
+def check_plant(cfg: SystemConfig, plant: SystemConfig) -> None:
+    """Check that ``plant`` differs from ``cfg`` only in :func:`plant_parameter` names.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first parameter that may not differ.
+    """
+    a, b = dict(cfg.params or {}), dict(plant.params or {})
+    for name in sorted(set(a) | set(b)):
+        if a.get(name) != b.get(name) and not plant_parameter(name):
+            raise ConfigError(f"plant: '{name}' must equal the configuration's (only masses, "
+                              "inertias, suspensions, geophone dynamics and disturbances may "
+                              "differ)")
 
 
 class PlantSimulator:
@@ -43,14 +76,19 @@ class PlantSimulator:
         Recorded ground velocity (m/s) at the control rate, replayed instead of white noise.
     table : ndarray, shape (K, N, dof), optional
         Wrenches added to the table forces of the first K samples (N, N*m).
+    disturbances : bool
+        False: no ground motion and no table forces at all (and none drawn: a loop model
+        only needs the plant's matrices, cheaply).
     """
 
     def __init__(self, cfg: SystemConfig, seed: int | None = None,
-                 ground: Array | None = None, table: Array | None = None) -> None:
+                 ground: Array | None = None, table: Array | None = None,
+                 disturbances: bool = True) -> None:
         self.cfg = cfg
         seed = cfg.disturbance.seed if seed is None else seed
         self.plant = DiscretePlant(discretize(plant_state_space(cfg), cfg.plant.dt))
-        self.disturbances = Disturbances(cfg, seed=seed, ground=ground, table=table)
+        self.disturbances = (Disturbances(cfg, seed=seed, ground=ground, table=table)
+                             if disturbances else None)
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_SENSOR_STREAM,)))
         self.geophones = GeophoneArray(cfg, rng)
         self.channels = channel_layout(cfg)
@@ -85,7 +123,11 @@ class PlantSimulator:
         return self._chan
 
     def _draw(self) -> None:
-        self._ground, self._dist = self.disturbances.next()
+        if self.disturbances is None:
+            self._ground = np.zeros(self.cfg.plant.dof)
+            self._dist = np.zeros((self.cfg.plant.num_stages, self.cfg.plant.dof))
+        else:
+            self._ground, self._dist = self.disturbances.next()
         self._raw = None
 
     def truth(self) -> Array:
@@ -103,7 +145,7 @@ class PlantSimulator:
             self._raw = self.geophones.step(true_ch)
         return self._raw
 
-    def advance(self, wrenches: Mapping[str, Array]) -> Array:
+    def advance(self, wrenches: Mapping[str, Array], excitation: Array | None = None) -> Array:
         """Apply the controllers' wrenches for sample k and step to k+1.
 
         Parameters
@@ -112,6 +154,9 @@ class PlantSimulator:
             Wanted wrench (N, N*m) of each controller at its stage's reference point; missing
             controllers contribute nothing. A non-finite wrench is never applied: it counts as
             zero and increments :attr:`nonfinite_inputs`.
+        excitation : ndarray, shape (N, dof), optional
+            Excitation wrench per stage (:mod:`.excitation`), added after the controllers'
+            and allocated and clipped with them; non-finite counts as above.
 
         Returns
         -------
@@ -126,6 +171,11 @@ class PlantSimulator:
                 self.nonfinite_inputs += 1
                 continue
             totals[controller_stage(cid) - 1] += w
+        if excitation is not None:
+            if np.all(np.isfinite(excitation)):
+                totals += excitation
+            else:
+                self.nonfinite_inputs += 1
         u = self._u
         u[: self.dof] = self._ground
         pos = self.dof

@@ -44,6 +44,13 @@ def force_topic(controller: str) -> str:
     return f"{NAMESPACE}/force/{controller}"
 
 
+#: Id of the excitation source (:mod:`.excitation`): its wrench topic is ``force_topic`` of it.
+EXCITATION_ID = "excitation"
+#: geometry_msgs/WrenchStamped: the excitation wrench (N, N*m) on the stage named by its
+#: ``frame_id``, summed by the plant with the controllers' forces before allocation.
+EXCITATION = f"{NAMESPACE}/force/{EXCITATION_ID}"
+
+
 def set_mode_service(mode_value: str) -> str:
     """std_srvs/Trigger: switch the whole graph to one mode atomically."""
     return f"{NAMESPACE}/set_mode/{mode_value}"

@@ -266,7 +266,7 @@ def declare_observed(node: Node) -> list[str]:
 
 
 #: Node names of the graph itself; a subscriber from any other node is an observer.
-GRAPH_NODES = ("plant_simulator", "sensor_decoupling", "mode_switch")
+GRAPH_NODES = ("plant_simulator", "sensor_decoupling", "mode_switch", "excitation")
 
 
 class FirstSampleGate:

@@ -27,6 +27,7 @@ class PlantOptions:
     timing_file: str
     status_period_s: float
     ground_from: str
+    excitation: bool = False
 
 
 def declare_plant_options(node: Node, num_stages: int) -> PlantOptions:
@@ -71,6 +72,10 @@ def declare_plant_options(node: Node, num_stages: int) -> PlantOptions:
         ground_from=declare_local(node, "ground_from", "", "Replay the ground velocity of this "
                                   "bag (BAG or BAG:TOPIC, resampled to plant.rate_hz) instead of "
                                   "white noise; empty: white noise"),
+        excitation=declare_local(node, "excitation", False, "Sum the excitation wrench of "
+                                 "/dcsms/force/excitation (frame_id: the stage) with the "
+                                 "controllers' before allocation; in lockstep wait for it like "
+                                 "for a controller"),
     )
 
 

@@ -53,7 +53,7 @@ from dcsms_ros.nodes.params import (
 )
 from dcsms_ros.nodes.plant_options import declare_plant_options, replayed_ground
 from dcsms_ros.nodes.runtime import Stoppable, main_for, wait_acked
-from dcsms_ros.nodes.wire import JointStateWriter, StampedWriter, read_stamped
+from dcsms_ros.nodes.wire import JointStateWriter, StampedWriter, read_frame, read_stamped
 
 #: Real time: at most this many samples are computed in one timer callback to catch up.
 MAX_BURST = 20
@@ -74,7 +74,11 @@ class PlantSimulatorNode(Node, Stoppable):
         self.lockstep = self.schedule == "lockstep"
         opts = declare_plant_options(self, n)
         self.duration_s = opts.duration_s
-        self.controllers = list(opts.controllers)
+        # the excitation node answers each sample like a controller (excitation.py); the
+        # plant adds its wrench after the controllers' (as the batch engine's excite=)
+        self.controllers = list(opts.controllers) + ([topics.EXCITATION_ID]
+                                                     if opts.excitation else [])
+        self._exc_stage: int | None = None  # 0-based stage named by the excitation's frame
         self.retry_s = opts.retry_s
         self.absent_after = opts.absent_after
         self.handshake_timeout_s = opts.handshake_timeout_s
@@ -280,7 +284,13 @@ class PlantSimulatorNode(Node, Stoppable):
                 self.pub_applied.publish(self._w_applied.encode(ns, applied))
 
     def _advance(self, wrenches: dict[str, np.ndarray]) -> None:
-        applied = self.sim.advance(wrenches)
+        exc = None
+        if topics.EXCITATION_ID in wrenches:
+            w = wrenches.pop(topics.EXCITATION_ID)
+            exc = np.zeros((len(self.bodies) - 1, self.dof))
+            if self._exc_stage is not None:
+                exc[self._exc_stage] = w
+        applied = self.sim.advance(wrenches, exc)
         # lockstep: published after the next raw sample, off the loop's critical path
         self._applied = (applied, self._ns)
         if not self.lockstep:
@@ -314,6 +324,8 @@ class PlantSimulatorNode(Node, Stoppable):
         later (drained)."""
         stamp, w = read_stamped(buf, WrenchStamped, self.dof)
         w = self.force_guard.clean(w, 0.0)
+        if cid == topics.EXCITATION_ID and self._exc_stage is None:
+            self._exc_stage = self._stage_of(read_frame(buf, WrenchStamped))
         now_ns = time.monotonic_ns() if rx_ns is None else rx_ns
         if self.timing_file:  # sensor-to-force latency: sample publication -> force arrival
             k = round(stamp * self.rate / 1e9)
@@ -332,6 +344,16 @@ class PlantSimulatorNode(Node, Stoppable):
         if all(c in self._got or c in self._absent for c in self.controllers):
             self._complete()
             self._pump()
+
+    def _stage_of(self, frame: str) -> int | None:
+        """0-based index of the stage an excitation's frame_id names (None: not a stage; the
+        excitation then adds nothing, and it is logged)."""
+        if frame in self.bodies[1:]:
+            return self.bodies.index(frame) - 1
+        self.get_logger().error(f"excitation frame_id {frame!r} is not a stage "
+                                f"({', '.join(self.bodies[1:])}): ignored",
+                                throttle_duration_sec=5.0)
+        return None
 
     def _lockstep_timeout(self) -> None:
         missing = [c for c in self.controllers if c not in self._got and c not in self._absent]

@@ -84,6 +84,15 @@ def read_stamped(buf: bytes, msg_type: Any, dof: int) -> tuple[int, Array]:
     return stamp_ns(m.header.stamp), v
 
 
+def read_frame(buf: bytes, msg_type: Any) -> str:
+    """``header.frame_id`` of a serialized stamped message."""
+    if buf[:2] == _LE and len(buf) >= 16:
+        n = _U32.unpack_from(buf, 12)[0]
+        if 0 < n <= len(buf) - 16:
+            return bytes(buf[16:16 + n - 1]).decode(errors="replace")
+    return str(deserialize_message(buf, msg_type).header.frame_id)
+
+
 class JointStateWriter:
     """Serialise a JointState with fixed channel ``names`` and one filled ``field``.
 

@@ -34,8 +34,12 @@ def test_analyze_writes_report_and_orders_table4(bag: Path, tmp_path: Path) -> N
     md = (out / "report.md").read_text()
     assert "| DFBC+FFC |" in md and "VC-" in md
     passive = doc["segments"][0]["axes"]["z"]
-    assert passive["analytic"]["compared_bins"] > 50  # the core model overlays Passive
-    assert passive["analytic"]["max_abs_error_db"] < 3.0
+    model = passive["model"]["transmissibility"]["stage2"]  # the loop model overlays Passive
+    assert model["compared_bins"] > 50
+    assert model["max_abs_error_db"] < 3.0
+    assert passive["estimates"]["transmissibility"]["status"] == "estimated"
+    assert passive["estimates"]["mobility"]["status"] == "unavailable"
+    assert passive["model"]["mobility"] is None
     assert {"stage1", "stage2"} == set(passive["vc"])
     forces = doc["segments"][1]["forces"]
     assert forces[0]["rms_n"] > 0 and forces[0]["limit_n"] == 400.0  # 4 coils x 100 N

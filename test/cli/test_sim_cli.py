@@ -66,6 +66,12 @@ def test_ground_from_replays_recorded_ground(bag: Path, tmp_path: Path,
     (["--mode", "warp"], "unknown mode"),
     (["--duration", "-1"], "must be > 0"),
     (["--set", "m1=-5"], "stage1.mass"),
+    (["--excite", "stage1.z:white:150"], "exceeds the actuator limit"),
+    (["--excite", "stage1.z:white:5", "--excite", "stage2.z:white:5"], "one stage"),
+    (["--excite", "stage1.z:chirp:5"], "unknown kind"),
+    (["--plant-set", "feedback.stage1.gain=[0,0,1,0,0,0]"], "feedback.stage1.gain"),
+    (["--plant-set", "m1=-3"], "stage1.mass"),
+    (["--engine", "graph", "--plant-set", "m1=900"], "--plant-set is not supported"),
 ])
 def test_bad_input_is_one_line_exit_2(bag: Path, tmp_path: Path, extra: list[str],
                                       message: str, capsys: pytest.CaptureFixture[str]) -> None:
@@ -76,6 +82,36 @@ def test_bad_input_is_one_line_exit_2(bag: Path, tmp_path: Path, extra: list[str
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("dcsms: error:") and message in err, err
     assert not (tmp_path / "x").exists() and not (tmp_path / "x.partial").exists()
+
+
+def test_excite_and_plant_set(tmp_path: Path) -> None:
+    """--excite writes the excitation the plant added on /dcsms/force/excitation (frame = the
+    stage); --plant-set changes the simulated plant but not the recorded configuration."""
+    from dcsms_ros.analysis.reader import config_from_yaml
+    from dcsms_ros.cli.common import default_config_path
+    from dcsms_ros.core.config import load_config, with_overrides
+    from dcsms_ros.core.engine import simulate
+    from dcsms_ros.core.excitation import excitation_signal, parse_spec
+
+    out = tmp_path / "e"
+    assert main(["sim", "--duration", "1", "--seed", "2", "--out", str(out), "--excite",
+                 "stage2.z:sweep:10:1-50", "--plant-set", "m1=1100"]) == 0
+    with Reader(out) as r:
+        conns = [c for c in r.connections if c.topic == "/dcsms/force/excitation"]
+        raw = [bytes(d) for _, _, d in r.messages(connections=conns)]
+        text = [bytes(d) for c, _, d in r.messages() if c.topic == "/dcsms/config"]
+    batch = cdr.decode_batch(cdr.WRENCH_STAMPED, raw)
+    cfg = load_config(default_config_path())
+    exc = excitation_signal(cfg, [parse_spec("stage2.z:sweep:10:1-50")], 2000, 2)
+    assert batch.frame_id == "stage2"
+    np.testing.assert_array_equal(batch.fields["wrench"][:, 2], exc[:, 1, 0])
+    assert not batch.fields["wrench"][:, [0, 1, 3, 4, 5]].any()
+    recorded = config_from_yaml(cdr.decode_string(text[0]))
+    assert recorded.plant.stages[0].mass == 988.8
+    res = simulate(cfg, Mode.PASSIVE, 1.0, seed=2, excite=exc,
+                   plant=with_overrides(cfg, {"m1": 1100.0}))
+    np.testing.assert_array_equal(_twists(out, "/dcsms/velocity/stage1")[:, 2],
+                                  res.velocity[:, 1, 0])
 
 
 def test_existing_out_refused(bag: Path, capsys: pytest.CaptureFixture[str]) -> None:

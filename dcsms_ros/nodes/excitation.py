@@ -1,0 +1,185 @@
+"""Excitation node ``excitation``: a known force on one stage for identification.
+
+Publishes ``/dcsms/force/excitation`` (geometry_msgs/WrenchStamped, frame_id = the pushed stage,
+N and N*m) for every sample of the plant: it answers each ``/dcsms/sensors/raw`` sample, stamped
+like it, as a controller answers its velocity, so the plant (parameter ``excitation: true``)
+sums it with the controllers' wrenches before allocation and clipping and, in lockstep, waits
+for it like for a controller (same timeout and absence rules; in real time a stale excitation
+counts as zero after ``control.input_timeout_s``). Zero while inactive. The signal of sample k
+is :class:`~dcsms_ros.core.excitation.Excitation` of the specifications (``spec``, as
+``dcsms sim --excite``) and ``disturbance.seed``, counted from the sample it was started on: a
+run active from sample 0 adds exactly what ``dcsms sim --excite`` adds.
+
+``~/enable`` (std_srvs/SetBool, ``/dcsms/excitation/enable``) starts (true) or stops (false) it;
+parameter ``active`` starts it with the run. It is never active while the instability trip is
+latched: ``mode_switch`` reports the latch on ``/dcsms/diagnostics`` (``tripped``), which stops
+the excitation and refuses a start until the latch is reset.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import WrenchStamped
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool
+
+from dcsms_ros.core import topics
+from dcsms_ros.core.excitation import Excitation, check_specs, parse_spec
+from dcsms_ros.errors import ConfigError
+from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.controller import MATCH_TIMEOUT_S
+from dcsms_ros.nodes.hotpath import HotPath
+from dcsms_ros.nodes.msgs import status, to_stamp
+from dcsms_ros.nodes.params import (
+    FirstSampleGate,
+    NodeConfig,
+    declare_local,
+    declare_observed,
+    declare_schedule,
+)
+from dcsms_ros.nodes.runtime import Stoppable, main_for, wait_acked
+from dcsms_ros.nodes.wire import StampedWriter, read_joint_state
+
+
+class ExcitationNode(Node, Stoppable):
+    """ROS adapter around :class:`~dcsms_ros.core.excitation.Excitation`."""
+
+    def __init__(self, **kwargs) -> None:
+        kwargs.setdefault("namespace", topics.NAMESPACE)
+        super().__init__(topics.EXCITATION_ID, **kwargs)
+        self._lock = threading.RLock()
+        self.hot = HotPath(self, self._lock)
+        self.params = NodeConfig(self, lambda n: n == "disturbance.seed")
+        cfg = self.params.cfg
+        self.lockstep = declare_schedule(self) == "lockstep"
+        texts = declare_local(self, "spec", ["stage1.z:white:1"], "Excitations as `dcsms sim "
+                              "--excite` takes them, e.g. stage1.z:white:5 (one stage)")
+        try:
+            self.specs = [parse_spec(t) for t in texts]
+            check_specs(cfg, self.specs)
+        except ConfigError as exc:
+            raise ConfigError(f"node {self.get_name()}: parameter 'spec': {exc}") from None
+        if not self.specs:
+            raise ConfigError(f"node {self.get_name()}: parameter 'spec' is empty")
+        start = bool(declare_local(self, "active", False, "Start active with the run (as "
+                                   "dcsms sim --excite); else start with ~/enable"))
+        self.period_s = float(declare_local(self, "duration_s", 0.0, "Default period of "
+                                            "sweeps and stepped sines; 0: 60 s [s]", lo=0.0,
+                                            hi=1e9))
+        self.observed = declare_observed(self)
+        self._gate = FirstSampleGate(self, self.lockstep, MATCH_TIMEOUT_S)
+        self.cfg = cfg
+        self.rate = cfg.plant.rate_hz
+        self.seed = cfg.disturbance.seed
+        self.stage = self.specs[0].stage
+        self.writer = StampedWriter(WrenchStamped, f"stage{self.stage}", cfg.plant.dof)
+        self._zero = np.zeros(cfg.plant.dof)
+        self.exc: Excitation | None = None
+        self.k0 = 0  # sample the excitation was started on
+        self._start_pending = start  # start on the first sample (lockstep: sample 0)
+        self.tripped = False
+        self.last_ns = -1
+        self._cache: bytes | None = None
+        self.samples = self.repeats = self.out_of_order = 0
+        self.pub = self.create_publisher(WrenchStamped, topics.EXCITATION,
+                                         qos.stream_pub(self.lockstep))
+        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        self.hot.subscribe(JointState, topics.SENSORS_RAW, self._on_sample,
+                           qos.stream_sub(self.lockstep), raw=True)
+        self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diag,
+                                 qos.status())
+        self.create_service(SetBool, "~/enable", self._on_enable)
+        self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(f"excitation {', '.join(s.text for s in self.specs)} on "
+                               f"{topics.EXCITATION}, {'active' if start else 'inactive'}")
+        self.hot.start()
+
+    @property
+    def active(self) -> bool:
+        return self.exc is not None or self._start_pending
+
+    def _on_sample(self, buf: bytes) -> None:
+        ns = read_joint_state(buf)[0]
+        if ns == self.last_ns and self._cache is not None:
+            self.repeats += 1  # a lockstep retransmission: the same answer
+            self.pub.publish(self._cache)
+            return
+        if ns < self.last_ns:
+            self.out_of_order += 1
+            return
+        if not self._gate.ready([self.pub], self.observed):
+            return
+        k = round(ns * self.rate / 1e9)
+        if self._start_pending:
+            self._start_pending = False
+            self.exc = Excitation(self.cfg, self.specs, self.seed, self.period_s)
+            self.k0 = k
+        w = self._zero
+        if self.exc is not None:
+            row = self.exc.at(k - self.k0)[self.stage - 1]
+            w = row if np.isfinite(row).all() else self._zero
+        self.last_ns = ns
+        self._cache = self.writer.encode(ns, w)
+        self.pub.publish(self._cache)
+        self.samples += 1
+
+    def _stop(self) -> None:
+        self.exc = None
+        self._start_pending = False
+
+    def _on_enable(self, request: SetBool.Request, response: SetBool.Response):
+        with self._lock:
+            if request.data and self.tripped:
+                response.success = False
+                response.message = ("tripped: the excitation stays off until "
+                                    f"{topics.RESET_TRIP}")
+            elif request.data:
+                if not self.active:
+                    self._start_pending = True  # from the next sample on
+                response.success, response.message = True, "excitation started"
+            else:
+                self._stop()
+                response.success, response.message = True, "excitation stopped"
+        self.get_logger().info(response.message)
+        self._report()
+        return response
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        for st in msg.status:
+            if st.name != "mode_switch":
+                continue
+            tripped = any(kv.key == "tripped" and kv.value == "True" for kv in st.values)
+            with self._lock:
+                if tripped and not self.tripped and self.active:
+                    self.get_logger().warning("instability trip: excitation stopped")
+                if tripped:
+                    self._stop()
+                self.tripped = tripped
+
+    def _report(self) -> None:
+        level = DiagnosticStatus.WARN if self.tripped else DiagnosticStatus.OK
+        arr = DiagnosticArray()
+        arr.header.stamp = to_stamp(max(self.last_ns, 0))
+        arr.status = [status(topics.EXCITATION_ID, level, (
+            "tripped: off" if self.tripped else "active" if self.active else "inactive"), {
+            "active": self.active, "spec": " ".join(s.text for s in self.specs),
+            "started_at_sample": self.k0 if self.exc is not None else -1,
+            "samples": self.samples, "repeats": self.repeats,
+            "out_of_order": self.out_of_order, "tripped": self.tripped})]
+        self.pub_diag.publish(arr)
+
+    def close(self) -> None:
+        """Give reliable observers the last samples and the final counters."""
+        self._report()
+        wait_acked([self.pub, self.pub_diag])
+
+
+main = main_for(ExcitationNode)
+
+if __name__ == "__main__":
+    main()
