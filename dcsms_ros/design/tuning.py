@@ -47,6 +47,9 @@ Array = NDArray[np.float64]
 
 #: Frequency points of the margin search while tuning (the final check uses the full grid).
 TUNE_GRID_POINTS = 500
+#: Margin kept above the minimum while tuning (dB, deg): the final check's finer grid can read a
+#: margin a little lower than the tuning grid did.
+MARGIN_BUFFER = (0.3, 1.0)
 #: Objectives :func:`tune` knows.
 OBJECTIVES = ("attenuation", "table4")
 #: Band-integration points while tuning.
@@ -188,7 +191,7 @@ class Problem:
             raise DcsmsError("objective table4 needs a target (--target FILE)")
         self.cfg, self.knobs, self.objective = cfg, list(knobs), objective
         self.target = {m: dict(v) for m, v in (target or {}).items()}
-        self.min_gm, self.min_pm = min_gm_db, min_pm_deg
+        self.min_gm, self.min_pm = min_gm_db + MARGIN_BUFFER[0], min_pm_deg + MARGIN_BUFFER[1]
         self.axes = table_axes(cfg)
         self.grid = frequency_grid(cfg.plant.rate_hz, TUNE_GRID_POINTS)
         # COBYQA re-reads the constraints of earlier points (merit updates): keep them all
