@@ -100,6 +100,34 @@ def load_cfg(args: argparse.Namespace) -> SystemConfig:
     return load_config(path, overrides)
 
 
+def parse_schedule(text: str) -> list[tuple[float, Any]]:
+    """``"T:MODE,T:MODE"`` -> [(time s, Mode)], sorted; raises DcsmsError on bad items."""
+    from dcsms_ros.core.modes import parse_mode
+
+    out = []
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        t_text, sep, name = item.partition(":")
+        try:
+            t = float(t_text)
+        except ValueError:
+            t = float("nan")
+        if not sep or not t >= 0.0:
+            raise DcsmsError(f"--schedule {item!r}: expected TIME:MODE with TIME >= 0 s")
+        out.append((t, parse_mode(name)))
+    return sorted(out, key=lambda e: e[0])
+
+
+def print_model_check(cfg: SystemConfig) -> None:
+    """The model's verdict on every mode, one line per failing mode (and go on)."""
+    from dcsms_ros.core.check import check_config
+
+    bad = [c for c in check_config(cfg) if not c.ok]
+    if not bad:
+        print("model check: all six modes stable with margins", flush=True)
+    for c in bad:
+        print(f"model check: {c.mode.label}: {'; '.join(c.failures)}", flush=True)
+
+
 def print_json(obj: Any) -> None:
     """Print ``obj`` as one strict-JSON document on stdout."""
     print(json.dumps(jsonable(obj), allow_nan=False))
@@ -119,5 +147,6 @@ def plot_dir(path: Path) -> Path:
 
 __all__ = [
     "add_config_options", "add_output_options", "default_config_path", "find_share_file",
-    "jsonable", "load_cfg", "plot_dir", "print_json", "share_candidates",
+    "jsonable", "load_cfg", "parse_schedule", "plot_dir", "print_json", "print_model_check",
+    "share_candidates",
 ]

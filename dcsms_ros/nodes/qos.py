@@ -43,12 +43,16 @@ def latched() -> QoSProfile:
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def stream_pub(lockstep: bool) -> QoSProfile:
-    """Writer of a per-sample stream (sensors, velocities, forces, applied, truth)."""
+def stream_pub(lockstep: bool, durable: bool = False) -> QoSProfile:
+    """Writer of a per-sample stream (sensors, velocities, forces, applied, truth).
+
+    ``durable`` (lockstep only): transient local, so a reader that matched late still gets the
+    history from sample 0 (the trip checker of mode_switch must see every sample)."""
     return QoSProfile(depth=LOCKSTEP_DEPTH if lockstep else REALTIME_DEPTH,
                       history=HistoryPolicy.KEEP_LAST,
                       reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if lockstep and durable
+                      else DurabilityPolicy.VOLATILE)
 
 
 def stream_sub(lockstep: bool) -> QoSProfile:

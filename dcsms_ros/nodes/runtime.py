@@ -33,6 +33,7 @@ from rclpy.executors import (
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from dcsms_ros import graph
 from dcsms_ros.errors import DcsmsError
 
 #: Exit status of a configuration error (the CLI's convention).
@@ -41,9 +42,9 @@ EXIT_CONFIG = 2
 POLL_S = 0.1
 
 
-#: Environment variable: SCHED_FIFO priority (1-99) for every thread of a node process; unset
-#: or 0 keeps the default scheduler. ``dcsms up --rt-priority N`` sets it for the control path.
-RT_PRIORITY_ENV = "DCSMS_RT_PRIORITY"
+#: SCHED_FIFO priority (1-99) for every thread of a node process; unset or 0 keeps the default
+#: scheduler. ``dcsms up --rt-priority N`` sets it for the control path.
+RT_PRIORITY_ENV = graph.RT_PRIORITY_ENV
 
 
 def apply_rt_priority() -> str | None:
