@@ -214,21 +214,21 @@ def define_graph(cfg: SystemConfig, *, schedule: str = "realtime", mode: Mode = 
     lockstep = schedule == "lockstep"
     # start order: the supervisor and the controllers first, the plant (which waits for them)
     # last
-    # no /clock for mode_switch: its timers are steady and its trip is stamped with the
-    # judged sample; waking its multi-threaded executor at 100 Hz cost ~14 % of a core
+    # no node subscribes to /clock (use_sim_time stays false): timers and watchdogs run on the
+    # steady clock and every stamp carries the sample time; /clock is for ROS tools. Each
+    # /clock message woke every node's executor (~14 % of a core for mode_switch alone, and
+    # composed, contention for the driver thread)
     nodes = [NodeSpec("mode_switch", "mode_switch", {
-        "initial_mode": mode.value, "use_sim_time": False, "trip_enabled": bool(trip),
+        "initial_mode": mode.value, "trip_enabled": bool(trip),
         "allow_unstable": bool(allow_unstable)})]
     for cid in controller_ids(n):
-        p: dict[str, Any] = {"enabled": cid in on, "use_sim_time": True,
-                             "allow_unstable": bool(allow_unstable)}
+        p: dict[str, Any] = {"enabled": cid in on, "allow_unstable": bool(allow_unstable)}
         if cid.startswith("fb_"):
             p["stage"] = controller_stage(cid)
         nodes.append(NodeSpec(cid, "feedback_controller" if cid.startswith("fb_")
                               else "feedforward_controller", p, control_path=True))
     nodes += [
-        NodeSpec("sensor_decoupling", "sensor_decoupling", {"use_sim_time": True},
-                 control_path=True),
+        NodeSpec("sensor_decoupling", "sensor_decoupling", control_path=True),
         NodeSpec("plant_simulator", "plant_simulator", {
             "duration_s": float(duration_s), "ground_from": ground_from,
             "trip_gate": bool(trip and lockstep), "hold_at_s": float(hold_at_s)},

@@ -109,7 +109,7 @@ def build_graph(cfg: SystemConfig, args: argparse.Namespace, schedule: str, mode
         raise DcsmsError("--schedule: a switch at t=0 is the initial mode; use --mode")
     return define_graph(cfg, schedule=schedule, mode=mode, namespace=args.namespace,
                         duration_s=duration_s, observers=observers,
-                        ground_from=args.ground_from or "",
+                        ground_from=getattr(args, "ground_from", "") or "",
                         allow_unstable=args.allow_unstable,
                         hold_at_s=events[0][0] if events and schedule == "lockstep" else 0.0)
 

@@ -40,6 +40,7 @@ from rclpy.signals import SignalHandlerOptions
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import GraphSpec, NodeSpec, spec_from_dict
 from dcsms_ros.nodes import hotpath
+from dcsms_ros.nodes.deploy import LOCKSTEP_WRITER_DEPTH
 from dcsms_ros.nodes.runtime import EXIT_CONFIG, POLL_S, localhost_only, quiesce
 
 #: Executor threads: services and parameters of six nodes, the mode switch's calls.
@@ -87,7 +88,9 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
         if record:
             from dcsms_ros.nodes.recorder import Recorder
 
-            recorder = Recorder(record[0], list(record[1:]) or None, context=ctx)
+            recorder = Recorder(record[0], list(record[1:]) or None, context=ctx,
+                                queue_depth=LOCKSTEP_WRITER_DEPTH if spec.schedule ==
+                                "lockstep" else None)
             executor.add_node(recorder)
         nodes = create_nodes(spec, ctx)
         for nd in nodes:

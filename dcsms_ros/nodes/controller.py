@@ -207,7 +207,10 @@ class ControllerNode(Node, Stoppable):
                 self.get_logger().warning(f"{self.cid}: no input for "
                                           f"{self.watchdog.timeout_s:g} s: zero force",
                                           throttle_duration_sec=2.0)
-            self.pub.publish(self.writer.encode(self.get_clock().now().nanoseconds, self._zero))
+            # stamped with the sample time the plant has reached by now (no /clock needed)
+            late = int((time.monotonic() - (self.watchdog.last or 0.0)) * 1e9)
+            self.pub.publish(self.writer.encode(max(self.answers.last_ns, 0) + late,
+                                                self._zero))
 
     def _on_enable(self, request: SetBool.Request, response: SetBool.Response):
         with self._lock:

@@ -31,6 +31,9 @@ import yaml
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.graph import RT_PRIORITY_ENV, GraphSpec
 
+#: Recorder reader history in lockstep runs (= the writers', dcsms_ros.nodes.qos).
+LOCKSTEP_WRITER_DEPTH = 25000
+
 #: Seconds a process gets to exit after SIGINT, then after SIGTERM, before SIGKILL.
 STOP_TIMEOUTS = (5.0, 2.0)
 RECORDERS = ("process", "composed")
@@ -181,7 +184,10 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
         if how.composed and how.recorder == "composed":
             in_process = [str(how.record), *topics]
         else:
-            kids.append(Child("recorder", recorder_command(how.record, topics)))
+            # lockstep: the reader history covers as much as the writers' (qos.py)
+            depth = ["--queue-depth", str(LOCKSTEP_WRITER_DEPTH)] \
+                if spec.schedule == "lockstep" else []
+            kids.append(Child("recorder", recorder_command(how.record, topics) + depth))
     if how.composed:
         graph = [composed_child(graph_file, params_file, how.rt_priority, in_process)]
     else:

@@ -100,11 +100,11 @@ class PlantSimulatorNode(Node, Stoppable):
         self.add_post_set_parameters_callback(self._on_local)
         self.started = False
         self._waiting_hold = False
-        # real time steps on the hot thread (set_tick) unless the hot path is off
+        # the executor's timer runs the handshake; then the hot loop steps (real time) or
+        # pumps and watches the barrier's deadlines (lockstep), unless the hot path is off
         tick = 1.0 / self.rate if not self.lockstep and not self.hot.on else 0.005
         self._tick_timer = self.create_timer(tick, self._tick_locked, clock=plant_io.STEADY)
-        if not self.lockstep:
-            self.hot.set_tick(self._hot_tick)
+        self.hot.set_tick(self._hot_tick)
         self.create_timer(opts.status_period_s, self.io.report, clock=plant_io.STEADY)
         self.get_logger().info(
             f"{self.schedule} at {self.rate:g} Hz, {cfg.plant.num_stages} stages "
@@ -128,8 +128,10 @@ class PlantSimulatorNode(Node, Stoppable):
                 with self._lock:
                     self._set_hold(float(p.value))
                     self._waiting_hold = False
-                    if self.started and self.lockstep and not self.barrier.waiting:
-                        self._pump()
+                if self.hot.on:
+                    self.hot.wake()  # the hot loop pumps on
+                else:
+                    self._tick_locked()
 
     # -- stepping ----------------------------------------------------------------------------
     def _tick_locked(self) -> None:
@@ -145,16 +147,35 @@ class PlantSimulatorNode(Node, Stoppable):
                 return
             self.started = True
             self.pacer.start(now)
-            if self._drained:
-                self._tick_timer.cancel()  # real time steps on the hot thread
-            self.hot.wake()
+            if self.hot.on:
+                self._tick_timer.cancel()  # the hot loop steps from here on
+                self.hot.wake()
+                return
         if not self.lockstep:
-            if not self.hot.on:
-                self._realtime(now)
-            return
+            self._realtime(now)
+        else:
+            self._lockstep(now)
+
+    def _hot_tick(self) -> float | None:
+        """On the hot loop after every wake-up: real time steps what is due, lockstep pumps
+        and watches the barrier; returns the seconds until the next deadline."""
+        if not self.started or self.finished:
+            return None
+        if self.lockstep:
+            return self._lockstep(time.monotonic())
+        for cid, sub in self._force_subs:
+            with sub.handle:
+                while (got := sub.handle.take_message(WrenchStamped, True)) is not None:
+                    self._on_force(cid, got[0], self.io.arrival(got[1]))
+        self._realtime(time.monotonic())
+        return self.pacer.wait_s(time.monotonic(), self.sim.k)
+
+    def _lockstep(self, now: float) -> float | None:
+        """Publish the next samples, or republish / give up on missing answers; returns the
+        seconds until the barrier's next deadline (None: nothing to watch)."""
         if not self.barrier.waiting:
             self._pump()
-            return
+            return None if not self.barrier.waiting else self.barrier.next_deadline(now)
         act = self.barrier.poll(now)
         if act is Action.RETRANSMIT:
             self.io.republish(TRIP in self.barrier.missing())
@@ -163,17 +184,7 @@ class PlantSimulatorNode(Node, Stoppable):
             self.io.missed(missing, absent, self.barrier)
             self._complete()
             self._pump()
-
-    def _hot_tick(self) -> float | None:
-        """Real time on the hot thread: step what is due; seconds until the next sample."""
-        if not self.started or self.finished:
-            return None
-        for cid, sub in self._force_subs:
-            with sub.handle:
-                while (got := sub.handle.take_message(WrenchStamped, True)) is not None:
-                    self._on_force(cid, got[0], self.io.arrival(got[1]))
-        self._realtime(time.monotonic())
-        return self.pacer.wait_s(time.monotonic(), self.sim.k)
+        return self.barrier.next_deadline(now) if self.barrier.waiting else None
 
     def _pump(self, max_steps: int = 50) -> None:
         """Lockstep: publish samples until one needs answers (bounded, to stay responsive)."""

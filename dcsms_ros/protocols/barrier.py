@@ -124,6 +124,12 @@ class LockstepBarrier:
             return Action.RETRANSMIT
         return Action.NONE
 
+    def next_deadline(self, now: float) -> float:
+        """Seconds from ``now`` until :meth:`poll` has something to do (0 if overdue)."""
+        limit = self.timeout_s if self.k > 0 else self.first_timeout_s
+        due = min(self._t_sent + limit, self._t_retx + self.retry_s)
+        return max(due - now, 0.0) + 1e-4  # poll() needs the deadline passed
+
     def expire(self) -> tuple[list[str], list[str]]:
         """Count a fault for every missing participant and complete the sample.
 

@@ -67,26 +67,33 @@ class TripFeed:
         """Newest stamp every stage has arrived at (-1 while one has nothing)."""
         return min(self._newest)
 
-    def judge(self, through_ns: int | None = None) -> Trip | None:
-        """Give the checker every aligned row up to ``through_ns`` (default: all complete).
+    def judge(self, through_ns: int | None = None, lag_ns: int = 50_000_000) -> Trip | None:
+        """Give the checker every aligned row up to ``through_ns`` (lockstep: each stage must
+        have it) or, without it (real time), every row older than ``lag_ns`` before the newest
+        sample any stage has, a stage that lacks one counting zero there (a silent stream must
+        not blind the trip).
 
         Returns the trip of a checkpoint among them (the rest of the rows are dropped then), or
         None.
         """
-        upto = self.complete_ns()
-        if through_ns is not None:
-            upto = min(upto, through_ns)
+        strict = through_ns is not None
+        upto = min(self.complete_ns(), through_ns) if strict else max(self._newest) - lag_ns
         rows, stamps = [], []
-        while all(q and q[0][0] <= upto for q in self._queues):
-            heads = [q[0][0] for q in self._queues]
-            s = max(heads)
-            if min(heads) != s:  # a stage lacks this sample: drop the older heads
+        while True:
+            heads = [q[0][0] for q in self._queues if q]
+            if not heads or (strict and len(heads) < len(self._queues)):
+                break
+            s = max(heads) if strict else min(heads)
+            if s > upto:
+                break
+            if strict and min(heads) != s:  # a stage lacks this sample: drop the older heads
                 for q in self._queues:
                     if q[0][0] < s:
                         q.popleft()
                 continue
             k = self.index(s)
-            row = [q.popleft()[1] for q in self._queues]
+            row = [q.popleft()[1] if q and q[0][0] == s else np.zeros(self.checker.dof)
+                   for q in self._queues]
             if self._align and k % self.checker.every:
                 self.judged_ns = s  # after a reset: wait for a checkpoint block's start
                 continue
