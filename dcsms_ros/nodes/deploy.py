@@ -36,6 +36,8 @@ LOCKSTEP_WRITER_DEPTH = 25000
 
 #: Seconds a process gets to exit after SIGINT, then after SIGTERM, before SIGKILL.
 STOP_TIMEOUTS = (5.0, 2.0)
+#: The same for the recorder, which writes its whole backlog first (recorder.DRAIN_MAX_S).
+RECORDER_STOP_TIMEOUTS = (40.0, 5.0)
 RECORDERS = ("process", "composed")
 
 
@@ -121,9 +123,9 @@ def start(kids: Sequence[Child], log_dir: Path, verbose: bool) -> None:
             out.close()
 
 
-def stop(kids: Sequence[Child]) -> None:
+def stop(kids: Sequence[Child], timeouts: tuple[float, float] = STOP_TIMEOUTS) -> None:
     """SIGINT to every running child, then SIGTERM, then SIGKILL after the timeouts."""
-    for sig, timeout in ((signal.SIGINT, STOP_TIMEOUTS[0]), (signal.SIGTERM, STOP_TIMEOUTS[1]),
+    for sig, timeout in ((signal.SIGINT, timeouts[0]), (signal.SIGTERM, timeouts[1]),
                          (signal.SIGKILL, 5.0)):
         alive = [k for k in kids if k.proc is not None and k.proc.poll() is None]
         if not alive:
@@ -204,8 +206,10 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     finally:
         if monitor is not None:
             monitor.close()
-        stop(graph)  # the graph first, so the recorder receives everything it published
-        stop(kids)
+        # the graph first (composed with the recorder inside: its drain too), so the recorder
+        # receives everything it published
+        stop(graph, RECORDER_STOP_TIMEOUTS if in_process else STOP_TIMEOUTS)
+        stop(kids, RECORDER_STOP_TIMEOUTS)
     if kids and kids[0].proc is not None and kids[0].proc.returncode not in (0, None):
         print(f"dcsms up: the recorder exited with status {kids[0].proc.returncode}",
               file=sys.stderr)

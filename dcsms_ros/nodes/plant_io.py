@@ -30,7 +30,7 @@ from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.msgs import node_status, sample_ns, to_stamp
 from dcsms_ros.nodes.params import declare_observed, outside_graph, publishers_matched
-from dcsms_ros.nodes.runtime import wait_acked
+from dcsms_ros.nodes.runtime import ACK_WAIT_FINISHED_S, ACK_WAIT_S, wait_acked
 from dcsms_ros.nodes.wire import JointStateWriter, StampedWriter, header_bytes
 from dcsms_ros.protocols.barrier import LockstepBarrier
 
@@ -262,7 +262,7 @@ class PlantIO:
                      **{f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
                         for c, v in self._lat.items()})
         pubs = [self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag]
-        wait_acked(pubs)
+        wait_acked(pubs, ACK_WAIT_FINISHED_S if self.node.finished else ACK_WAIT_S)
 
 
 __all__ = ["SETTLE_S", "STEADY", "PlantIO"]

@@ -85,6 +85,9 @@ class Stoppable:
 
 #: Longest total wait (s) of a node's close() for its reliable readers' acknowledgements.
 ACK_WAIT_S = 3.0
+#: The same after a run that finished by itself (the plant's duration): a recorder on a loaded
+#: machine may trail a fast (composed) lockstep run by seconds, and nothing may be lost.
+ACK_WAIT_FINISHED_S = 30.0
 
 
 def wait_acked(pubs: Sequence[Any], total_s: float = ACK_WAIT_S) -> None:
