@@ -157,43 +157,57 @@ def check_run(cfg: SystemConfig, duration_s: float, out: Path) -> int:
     return est
 
 
+_ABORT = object()
+
+
 class _Writer:
-    """The writer thread: encodes and writes the blocks handed over in :meth:`put`."""
+    """The writer thread: owns the bag (SQLite objects must stay in one thread), encodes and
+    writes the blocks handed over in :meth:`put`, closes or aborts the bag."""
 
     def __init__(self, cfg: SystemConfig, out: Path, storage: str, clock: bool) -> None:
-        self.cfg, self.clock, self.storage = cfg, clock, storage
-        self.bag: Any = McapBagWriter(out) if storage == "mcap" else BagWriter(out, storage)
+        self.cfg, self.clock, self.storage, self.out = cfg, clock, storage, out
+        self.bag: Any = None
         self.lay: list[_Layout] = []
         self._tpl: RowTemplate | None = None
         self._modes: list[tuple[int, str]] = []  # mode changes not written yet (a trip's
         # Passive may fall on the next block's first sample)
-        self.queue: queue.Queue[SimResult | None] = queue.Queue(maxsize=1)
+        self.queue: queue.Queue[Any] = queue.Queue(maxsize=1)
         self.error: BaseException | None = None
+        self.counts: dict[str, int] = {}
         self.busy_s = 0.0
         self.thread = threading.Thread(target=self._run, name="bag-writer", daemon=True)
         self.thread.start()
 
-    def put(self, res: SimResult | None) -> None:
-        """Hand over the next block (None: the end); raises the writer's error, if any."""
-        while True:
+    def put(self, item: Any) -> None:
+        """Hand over the next block (None: close the bag); raises the writer's error, if any."""
+        while self.thread.is_alive():
             if self.error is not None:
                 raise self.error
             try:
-                self.queue.put(res, timeout=0.1)
+                self.queue.put(item, timeout=0.1)
                 return
             except queue.Full:
                 continue
+        if self.error is not None:
+            raise self.error
 
     def _run(self) -> None:
         try:
-            while (res := self.queue.get()) is not None:
+            self.bag = (McapBagWriter(self.out) if self.storage == "mcap"
+                        else BagWriter(self.out, self.storage))
+            while (item := self.queue.get()) is not None:
+                if item is _ABORT:
+                    self.bag.abort()
+                    return
                 t = time.perf_counter()
-                self._write(res)
+                self._write(item)
                 self.busy_s += time.perf_counter() - t
+            self.bag.close()
+            self.counts = dict(self.bag.counts)
         except BaseException as exc:  # noqa: BLE001 - handed to the main thread
             self.error = exc
-            while self.queue.get() is not None:  # let the producer finish
-                pass
+            if self.bag is not None:
+                self.bag.abort()
 
     def _start(self, res: SimResult) -> None:
         self.lay = layouts(self.cfg, res.channel_names, res.actuator_names, self.clock)
@@ -249,17 +263,15 @@ class _Writer:
         self.thread.join()
         if self.error is not None:
             raise self.error
-        self.bag.close()
-        return dict(self.bag.counts)
+        return self.counts
 
     def abort(self) -> None:
         if self.thread.is_alive():
             try:
-                self.queue.put(None, timeout=1.0)
+                self.queue.put(_ABORT, timeout=30.0)
             except queue.Full:
                 pass
-            self.thread.join(10.0)
-        self.bag.abort()
+            self.thread.join(30.0)
 
 
 def stream_bag(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path,
