@@ -89,8 +89,9 @@ def test_every_reader_sees_the_same_counts(tmp_path: Path) -> None:
     assert data.counts == got.counts
 
 
-def test_hopeless_runs_are_refused_before_writing(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+def test_hopeless_runs_are_refused_before_writing(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
     """An absurd duration, or a bag larger than the free space: one line, exit 2, no file."""
     out = tmp_path / "never"
     assert main(["sim", "--duration", "1e9", "--out", str(out)]) == 2
