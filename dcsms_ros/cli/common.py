@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -117,15 +118,43 @@ def parse_schedule(text: str) -> list[tuple[float, Any]]:
     return sorted(out, key=lambda e: e[0])
 
 
-def print_model_check(cfg: SystemConfig) -> None:
-    """The model's verdict on every mode, one line per failing mode (and go on)."""
+def model_check_lines(cfg: SystemConfig) -> list[str]:
+    """The model's verdict on every mode: one line per failing mode, or one line saying all six
+    are stable with margins. The verdict is a function of the configuration and of the check's
+    code, so it is kept in ``$XDG_CACHE_HOME/dcsms`` (default ``~/.cache``) under their hash:
+    a repeated run of the same configuration does not spend seconds recomputing it."""
+    import hashlib
+
+    import dcsms_ros.core as core
+
+    src = b"".join((Path(core.__file__).parent / f).read_bytes() for f in (
+        "check.py", "loop_model.py", "margins.py", "spectra.py", "config.py", "schema.py"))
+    key = hashlib.sha256(src + json.dumps(cfg.params, sort_keys=True, default=str).encode())
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "dcsms" / \
+        f"check-{key.hexdigest()[:32]}.json"
+    try:
+        return list(json.loads(cache.read_text()))
+    except (OSError, ValueError):
+        pass
     from dcsms_ros.core.check import check_config
 
     bad = [c for c in check_config(cfg) if not c.ok]
-    if not bad:
-        print("model check: all six modes stable with margins", flush=True)
-    for c in bad:
-        print(f"model check: {c.mode.label}: {'; '.join(c.failures)}", flush=True)
+    lines = [f"model check: {c.mode.label}: {'; '.join(c.failures)}" for c in bad] or [
+        "model check: all six modes stable with margins"]
+    try:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        tmp = cache.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(lines))
+        tmp.replace(cache)
+    except OSError:
+        pass  # a read-only home: no cache, same verdict
+    return lines
+
+
+def print_model_check(cfg: SystemConfig) -> None:
+    """Print :func:`model_check_lines` (and go on)."""
+    for line in model_check_lines(cfg):
+        print(line, flush=True)
 
 
 def print_json(obj: Any) -> None:
@@ -147,6 +176,7 @@ def plot_dir(path: Path) -> Path:
 
 __all__ = [
     "add_config_options", "add_output_options", "default_config_path", "find_share_file",
-    "jsonable", "load_cfg", "parse_schedule", "plot_dir", "print_json", "print_model_check",
+    "jsonable", "load_cfg", "model_check_lines", "parse_schedule", "plot_dir", "print_json",
+    "print_model_check",
     "share_candidates",
 ]
