@@ -240,7 +240,8 @@ class McapBagWriter:
             pos = np.arange(b - a, dtype=np.uint64) * np.uint64(w)
             index = {tp.channel: np.stack([t[a:b], pos + np.uint64(o)], axis=1)
                      for tp, o in zip(tpl.topics, tpl.offsets, strict=True)}
-            self._add(memoryview(buf[a:b]).cast("B"), index, int(t[a]), int(t[b - 1]))
+            rows: Any = buf[a:b]  # C-contiguous rows: no copy
+            self._add(memoryview(rows).cast("B"), index, int(t[a]), int(t[b - 1]))
 
     def _topic(self, topic: str) -> _Topic:
         try:

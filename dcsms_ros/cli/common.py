@@ -125,7 +125,7 @@ def model_check_lines(cfg: SystemConfig) -> list[str]:
     a repeated run of the same configuration does not spend seconds recomputing it."""
     import hashlib
 
-    import dcsms_ros.core as core
+    from dcsms_ros import core
 
     src = b"".join((Path(core.__file__).parent / f).read_bytes() for f in (
         "check.py", "loop_model.py", "margins.py", "spectra.py", "config.py", "schema.py"))

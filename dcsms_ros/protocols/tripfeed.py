@@ -77,7 +77,8 @@ class TripFeed:
         None.
         """
         strict = through_ns is not None
-        upto = min(self.complete_ns(), through_ns) if strict else max(self._newest) - lag_ns
+        upto = (min(self.complete_ns(), through_ns) if through_ns is not None
+                else max(self._newest) - lag_ns)
         rows, stamps = [], []
         while True:
             heads = [q[0][0] for q in self._queues if q]
