@@ -244,8 +244,9 @@ class ModeSwitchNode(Node):
     def _judge_locked(self, through_ns: int | None = None) -> None:
         with self._lock:
             self._drain()
-            trip = None if self.tripped else self.feed.judge(through_ns)
-        if trip is not None:
+            # judged on after a trip too: the reported RMS shows when the table has settled
+            trip = self.feed.judge(through_ns)
+        if trip is not None and not self.tripped:
             self._trip(trip.reason, self.feed.trip_ns)
 
     def _on_check(self, buf: bytes) -> None:
@@ -266,7 +267,7 @@ class ModeSwitchNode(Node):
         if self._asked < 0:
             return None
         self._drain()
-        if not self.tripped and self.feed.complete_ns() < self._asked:
+        if self.feed.complete_ns() < self._asked:
             return 0.0002
         self._judge_locked(self._asked)
         self._answer(self._asked)

@@ -67,7 +67,7 @@ class TripFeed:
         """Newest stamp every stage has arrived at (-1 while one has nothing)."""
         return min(self._newest)
 
-    def judge(self, through_ns: int | None = None, lag_ns: int = 50_000_000) -> Trip | None:
+    def judge(self, through_ns: int | None = None, lag_ns: int = 10_000_000) -> Trip | None:
         """Give the checker every aligned row up to ``through_ns`` (lockstep: each stage must
         have it) or, without it (real time), every row older than ``lag_ns`` before the newest
         sample any stage has, a stage that lacks one counting zero there (a silent stream must
