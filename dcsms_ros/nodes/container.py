@@ -41,7 +41,7 @@ from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import GraphSpec, NodeSpec, spec_from_dict
 from dcsms_ros.nodes import hotpath
 from dcsms_ros.nodes.deploy import LOCKSTEP_WRITER_DEPTH
-from dcsms_ros.nodes.runtime import EXIT_CONFIG, POLL_S, localhost_only, quiesce
+from dcsms_ros.nodes.runtime import POLL_S, close_node, config_error, localhost_only, quiesce
 
 #: Executor threads: services and parameters of six nodes, the mode switch's calls.
 EXECUTOR_THREADS = 3
@@ -104,8 +104,7 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
             if loop.error is not None:
                 raise loop.error
     except DcsmsError as exc:
-        print(f"dcsms: error: {exc}", file=sys.stderr, flush=True)
-        status = EXIT_CONFIG
+        status = config_error(exc)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
@@ -114,10 +113,7 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
         since = time.time_ns()
         for nd in reversed(nodes):
             quiesce(executor, nd, timeout_s=1.0)
-            close = getattr(nd, "close", None)
-            if close is not None:
-                close()
-            nd.destroy_node()
+            close_node(nd)
         if recorder is not None:
             recorder.drain(executor, since)
             print(recorder.finish().text(), flush=True)

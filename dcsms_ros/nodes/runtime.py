@@ -127,6 +127,20 @@ def quiesce(executor: Executor, node: Node, timeout_s: float = 2.0) -> None:
     time.sleep(0.05)  # the trailing guard-condition trigger of the last callback
 
 
+def config_error(exc: DcsmsError) -> int:
+    """Print a configuration error as one line; returns :data:`EXIT_CONFIG`."""
+    print(f"dcsms: error: {exc}", file=sys.stderr, flush=True)
+    return EXIT_CONFIG
+
+
+def close_node(node: Node) -> None:
+    """The node's own ``close()`` (final reports, acknowledgements), then destroy it."""
+    close = getattr(node, "close", None)
+    if close is not None:
+        close()
+    node.destroy_node()
+
+
 def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
         multithreaded: bool = False) -> int:
     """Create a node with ``factory(context=...)``, spin it, shut down cleanly.
@@ -173,18 +187,14 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
                 quiesce(executor, node)
             executor.shutdown(timeout_sec=2.0)
     except DcsmsError as exc:
-        print(f"dcsms: error: {exc}", file=sys.stderr, flush=True)
-        status = EXIT_CONFIG
+        status = config_error(exc)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         if node is not None:
             if getattr(node, "hot", None) is not None:
                 node.hot.stop()  # the hot thread ends before the node's entities go
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
-            node.destroy_node()
+            close_node(node)
         rclpy.try_shutdown(context=ctx)
     return status
 
