@@ -39,15 +39,23 @@ class _ProgressBar:
     a whole line every :data:`PIPE_PERIOD_S`, the first after that long, so a bag that fails
     early gives its one-line error and nothing else."""
 
-    def __init__(self, stream: Any = sys.stderr) -> None:
-        self.stream = stream
-        self.tty = bool(getattr(stream, "isatty", lambda: False)())
-        self.last = 0.0 if self.tty else time.monotonic()
+    def __init__(self, stream: Any = None) -> None:
+        self._stream = stream  # None: sys.stderr as it is when the bar is first drawn
+        self.tty: bool | None = None
+        self.last = time.monotonic()
         self.shown = False
+
+    @property
+    def stream(self) -> Any:
+        return self._stream if self._stream is not None else sys.stderr
 
     def __call__(self, done: int, total: int) -> None:
         if total < PROGRESS_MIN_MESSAGES:
             return
+        if self.tty is None:
+            self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+            if self.tty:
+                self.last = 0.0
         now = time.monotonic()
         period = 0.2 if self.tty else PIPE_PERIOD_S
         if now - self.last < period and (done < total or not self.shown):
