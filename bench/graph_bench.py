@@ -62,31 +62,44 @@ def _env(**kv: str):
 
 
 def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool = True,
-              timeout_s: float = 600.0, on_running: Any = None,
-              rt_priority: int = 0) -> dict[str, Any]:
-    """Start the six node processes, step ``seconds`` of simulated time, return the timings.
+              timeout_s: float = 600.0, on_running: Any = None, rt_priority: int = 0,
+              composed: bool = False, record: str | None = None,
+              config: Path = CONFIG) -> dict[str, Any]:
+    """Start the graph (one process per node, or ``composed``), step ``seconds`` of simulated
+    time, return the timings. ``record``: ``process`` or ``composed`` runs the recorder (every
+    topic of the graph and /diagnostics, as ``dcsms up --record`` does) beside it.
 
     ``on_running(kids)`` (e.g. a profiler attaching to ``kid.proc.pid``) is called once the
     plant steps."""
-    import yaml
-
-    from dcsms_ros.cli import up
     from dcsms_ros.core.config import load_config
     from dcsms_ros.core.modes import Mode
+    from dcsms_ros.graph import define_graph
+    from dcsms_ros.nodes import deploy
 
-    cfg = load_config(CONFIG)
+    cfg = load_config(config)
     run_dir = Path(tempfile.mkdtemp(prefix=f"graph-{schedule}-", dir=tmp))
     timing = run_dir / "timing.npz"
-    doc = up.params_document(cfg, schedule, Mode.DFBC_FFC, seconds, [])
-    doc[f"{up.topics.NAMESPACE}/plant_simulator"]["ros__parameters"]["timing_file"] = str(timing)
-    params = run_dir / "params.yaml"
-    params.write_text(yaml.safe_dump(doc, sort_keys=False))
-    kids = up.graph_children(cfg.plant.num_stages, params)
-    plant = next(k for k in kids if k.name == "plant_simulator")
-    if rt_priority:
-        up.set_rt_priority(kids, rt_priority)
+    spec = define_graph(cfg, schedule=schedule, mode=Mode.DFBC_FFC, duration_s=seconds)
+    recorded = [f"{spec.namespace}/*", "/diagnostics"]
+    if record and schedule == "lockstep":  # lockstep waits for the recorder, as `up` does
+        spec = define_graph(cfg, schedule=schedule, mode=Mode.DFBC_FFC, duration_s=seconds,
+                            observers=spec.stream_topics())
+    spec = spec.with_params("plant_simulator", timing_file=str(timing))
+    params, graph_file = deploy.write_files(spec, run_dir)
+    bag = run_dir / "bag"
+    rec: list[deploy.Child] = []
+    if record == "process":
+        rec = [deploy.Child("recorder", deploy.recorder_command(bag, recorded) + [
+            "--queue-depth", str(deploy.LOCKSTEP_WRITER_DEPTH)])]
+    if composed:
+        kids = [deploy.composed_child(graph_file, params, rt_priority,
+                                      [str(bag), *recorded] if record == "composed" else ())]
+    else:
+        kids = deploy.children(spec, params, rt_priority)
+    plant = kids[-1]
     with _env(ROS_DOMAIN_ID=str(domain), DCSMS_HOT_PATH="1" if hot else "0"):
-        up.start(kids, run_dir, verbose=False)
+        deploy.start(rec, run_dir, verbose=False)
+        deploy.start(kids, run_dir, verbose=False)
     try:
         assert plant.proc is not None and plant.log is not None
         deadline = time.monotonic() + timeout_s
@@ -95,16 +108,19 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
         while plant.proc.poll() is None and time.monotonic() < deadline:
             if not cpu0 and "graph connected" in plant.log.read_text(errors="replace"):
                 t_cpu0 = time.monotonic()
-                cpu0 = {k.name: _cpu_ticks(k.proc.pid) for k in kids if k.proc is not None}
+                cpu0 = {k.name: _cpu_ticks(k.proc.pid) for k in kids + rec
+                        if k.proc is not None}
                 if on_running is not None:
                     on_running(kids)
             time.sleep(0.02)
         t_cpu1 = time.monotonic()
-        cpu1 = {k.name: _cpu_ticks(k.proc.pid) for k in kids if k.proc is not None}
+        cpu1 = {k.name: _cpu_ticks(k.proc.pid) for k in kids + rec if k.proc is not None}
         if plant.proc.poll() is None:
             raise TimeoutError(f"{schedule} graph did not finish within {timeout_s:g} s")
     finally:
-        up.stop(kids)
+        deploy.stop(kids, deploy.RECORDER_STOP_TIMEOUTS if record == "composed" else
+                    deploy.STOP_TIMEOUTS)
+        deploy.stop(rec, deploy.RECORDER_STOP_TIMEOUTS)
     if plant.proc.returncode != 0 or not timing.exists():
         raise RuntimeError(f"plant exited {plant.proc.returncode}: "
                            f"{plant.log.read_text()[-2000:] if plant.log else ''}")
@@ -115,10 +131,19 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
            if cpu0.get(n) is not None and cpu1.get(n) is not None}
     c0, c1 = z["cpu_s"]
     t = z["t_pub_ns"].astype(np.float64) * 1e-9
-    cpu["plant_simulator"] = (c1 - c0) / max(t[-1] - t[0], 1e-9) if c1 > c0 else float("nan")
+    if not composed:
+        cpu["plant_simulator"] = (c1 - c0) / max(t[-1] - t[0], 1e-9) if c1 > c0 else float(
+            "nan")
     lat = np.concatenate([z[k] for k in z.files if k.startswith("lat_ns_")]) * 1e-9
-    return {"t": t, "rate_hz": float(z["rate_hz"]), "cpu": cpu, "latency_s": lat,
-            "overruns": int(z["overruns"])}
+    out = {"t": t, "rate_hz": float(z["rate_hz"]), "cpu": cpu, "latency_s": lat,
+           "overruns": int(z["overruns"]), "recorded": None,
+           "controllers": len([k for k in z.files if k.startswith("lat_ns_")])}
+    if record and bag.exists():
+        from rosbags.rosbag2 import Reader
+
+        with Reader(bag) as r:
+            out["recorded"] = {c.topic: c.msgcount for c in r.connections}
+    return out
 
 
 def lockstep_rate(r: dict[str, Any]) -> float:
@@ -214,7 +239,87 @@ def run(smoke: bool, tmp: Path) -> list[Row]:
         fifo[0]["target"] = 0.999 * r2["rate_hz"]  # absolute: the nominal rate, as above
         fifo[0].pop("target_ratio")
         rows += fifo
+    rows += composed_rows(smoke, tmp, base)
     return rows
+
+
+def _recorded(r: dict[str, Any], samples: int) -> str:
+    """What the recorder got of the stream topics (lockstep: every sample, nothing lost)."""
+    rec = r.get("recorded") or {}
+    streams = {t: c for t, c in rec.items() if "/velocity/" in t or "/force/" in t
+               or t.endswith(("/sensors/raw", "/actuators/applied"))}
+    short = {t: c for t, c in streams.items() if c < samples}
+    return (f"recorded {sum(rec.values())} msgs on {len(rec)} topics, "
+            + (f"SHORT: {short}" if short else f"every stream complete ({samples} samples)"))
+
+
+def composed_rows(smoke: bool, tmp: Path, base: int) -> list[Row]:
+    """Composed against one process per node, recording on, in this run; 6-DOF; real time
+    composed; `dcsms demo --composed` end to end."""
+    ls_s = 0.5 if smoke else 10.0
+    rows: list[Row] = []
+    rates: dict[str, float] = {}
+    runs = {}
+    if smoke:  # a few seconds: the composed path runs at all, recording included
+        r = run_graph("lockstep", ls_s, base + 10, tmp, composed=True, record="composed")
+        return [{"name": "graph: lockstep DFBC+FFC, composed, recorder in the same process",
+                 "value": lockstep_rate(r), "unit": "steps/s",
+                 "note": _recorded(r, int(round(ls_s * 2000)))}]
+    for key, composed, record in (("process", False, "process"), ("composed", True, "process"),
+                                  ("composed+rec", True, "composed")):
+        r = run_graph("lockstep", ls_s, base + 10 + len(runs), tmp, composed=composed,
+                      record=record)
+        rates[key], runs[key] = lockstep_rate(r), r
+    n = int(round(ls_s * 2000))
+    cpu = {k: ", ".join(f"{a} {100 * c:.0f}%" for a, c in sorted(r["cpu"].items()))
+           for k, r in runs.items()}
+    rows.append({"name": "graph: lockstep DFBC+FFC, 6 processes, recording on",
+                 "value": rates["process"], "unit": "steps/s",
+                 "note": f"{_recorded(runs['process'], n)}; CPU {cpu['process']}"})
+    rows.append({"name": "graph: lockstep DFBC+FFC, composed, recording on (recorder process)",
+                 "value": rates["composed"], "unit": "steps/s",
+                 "baseline_name": "6 processes, recording on", "baseline": rates["process"],
+                 "target": 5000.0, "target_ratio": 5.0,
+                 "note": f"{rates['composed'] / 2000:.2f}x real time at 2 kHz; step p50 "
+                         f"{np.percentile(np.diff(runs['composed']['t']), 50) * 1e6:.0f} us; "
+                         f"{_recorded(runs['composed'], n)}; CPU {cpu['composed']}"})
+    rows.append({"name": "graph: lockstep DFBC+FFC, composed, recorder in the same process",
+                 "value": rates["composed+rec"], "unit": "steps/s",
+                 "baseline_name": "recorder as its own process", "baseline": rates["composed"],
+                 "note": f"{_recorded(runs['composed+rec'], n)}; CPU {cpu['composed+rec']}"})
+    tem_s = 0.5 if smoke else 5.0
+    tem = run_graph("lockstep", tem_s, base + 14, tmp, composed=True, record="process",
+                    config=CONFIG.parent / "tem_three_point.yaml")
+    rate = lockstep_rate(tem)
+    rows.append({"name": "graph: lockstep 6dof TEM DFBC+FFC, composed, recording on",
+                 "value": rate / 2000.0, "unit": "x real time", "target": 1.0,
+                 "note": f"{rate:.0f} steps/s; {_recorded(tem, int(round(tem_s * 2000)))}"})
+    rt_s = RT_SECONDS if RT_SECONDS is not None else (3.0 if smoke else 60.0)
+    r = run_graph("realtime", rt_s, base + 15, tmp, timeout_s=rt_s * 3 + 120, composed=True)
+    s = realtime_stats(r)
+    rt = _realtime_rows(r, s, rt_s, ", composed")
+    rt[1]["target_max"], rt[2]["target_max"] = 1e-3, 0.5
+    rows += rt
+    rows.append(_demo_row(smoke, tmp))
+    return rows
+
+
+def _demo_row(smoke: bool, tmp: Path) -> Row:
+    """`dcsms demo --composed --rt-priority 50` (what `make demo` runs), wall time."""
+    import subprocess
+
+    out = Path(tempfile.mkdtemp(prefix="demo-", dir=tmp)) / "demo"
+    argv = [sys.executable, "-m", "dcsms_ros.cli", "demo", "--out", str(out), "--composed",
+            "--rt-priority", "50"]
+    if smoke:
+        argv += ["--modes", "Passive,FBC", "--segment", "0.5", "--settle", "0.5"]
+    t0 = time.perf_counter()
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=1800, check=False)
+    wall = time.perf_counter() - t0
+    tail = [ln for ln in proc.stdout.splitlines() if "simulated and recorded" in ln]
+    return {"name": "demo: `dcsms demo --composed --rt-priority 50` (make demo), end to end",
+            "value": wall, "unit": "s", "target_max": 90.0,
+            "note": f"exit {proc.returncode}; {tail[-1] if tail else proc.stderr[-300:]}"}
 
 
 def _realtime_rows(r: dict[str, Any], s: dict[str, float], rt_s: float,
@@ -223,8 +328,7 @@ def _realtime_rows(r: dict[str, Any], s: dict[str, float], rt_s: float,
     cpu = ", ".join(f"{n} {100 * c:.0f}%" for n, c in sorted(r["cpu"].items()))
     per = f"period p50/p99/p99.9/max {s['p50'] * 1e6:.0f}/{s['p99'] * 1e6:.0f}/" \
           f"{s['p999'] * 1e6:.0f}/{s['max'] * 1e6:.0f} us"
-    taken = r["latency_s"].size / max(s["samples"] * len([k for k in r["cpu"]
-                                                         if k[:3] in ("fb_", "ff_")]), 1)
+    taken = r["latency_s"].size / max(s["samples"] * r["controllers"], 1)
     return [
         {"name": f"graph: real time {rt_s:g} s{label}, achieved rate", "value": s["rate_hz"],
          "unit": "Hz", "baseline_name": "nominal", "baseline": r["rate_hz"],

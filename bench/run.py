@@ -73,9 +73,16 @@ def _graph(smoke: bool, tmp: Path) -> list[Row]:
     return list(graph_bench.run(smoke, tmp))
 
 
+def _stream(smoke: bool, tmp: Path) -> list[Row]:
+    import stream_bench
+
+    return stream_bench.run(smoke, tmp)
+
+
 #: name -> benchmark; run in this order.
 REGISTRY: dict[str, Callable[[bool, Path], list[Row]]] = {
-    "engine": _engine, "bags": _bags, "pingpong": _pingpong, "graph": _graph,
+    "engine": _engine, "bags": _bags, "stream": _stream, "pingpong": _pingpong,
+    "graph": _graph,
 }
 
 

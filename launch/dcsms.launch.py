@@ -1,85 +1,65 @@
 """Launch the dcsms_ros node graph on a real ROS 2 install (``ros2 launch dcsms_ros
-dcsms.launch.py``): the same nodes, names and parameter file that ``dcsms up`` starts.
+dcsms.launch.py``): the graph of :func:`dcsms_ros.graph.define_graph`, the same nodes, names and
+parameter file that ``dcsms up`` starts, for any number of stages and either fidelity.
 
 Arguments: ``config`` (params file, default the packaged ``config/table1.yaml``), ``schedule``
 (``realtime`` | ``lockstep``), ``mode`` (initial mode, e.g. ``dfbc_ffc``), ``duration_s``
-(simulated seconds, 0 = until stopped), ``rt_priority`` (SCHED_FIFO priority 1-99 of the
-control path: plant, decoupling, controllers; 0 = default scheduler), ``excite``
-(comma-separated excitation specifications, e.g. ``stage1.z:white:5``; empty = no excitation
-node) and ``excite_active`` (start it active), as ``dcsms up``.
+(simulated seconds, 0 = until stopped), ``namespace`` (default ``/dcsms``: two tables side by
+side take two namespaces), ``composed`` (``true``: every node in one process, one driver thread
+for the per-sample cycle), ``rt_priority`` (SCHED_FIFO priority 1-99 of the control path,
+composed: of the driver thread; 0 = default scheduler), ``excite`` (comma-separated excitation
+specifications, e.g. ``stage1.z:white:5``; empty = no excitation node) and ``excite_active``
+(start it with the run), as ``dcsms up``.
 """
 
 import os
+import sys
+import tempfile
 
+import yaml
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.actions import DeclareLaunchArgument, ExecuteProcess, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from dcsms_ros.core.config import load_config
+from dcsms_ros.core.modes import parse_mode
+from dcsms_ros.graph import RT_PRIORITY_ENV, define_graph
 from launch import LaunchDescription
 
 PACKAGE = "dcsms_ros"
-NAMESPACE = "/dcsms"
-NUM_STAGES = 2
-#: Controllers each mode enables (dcsms_ros.core.modes, for the paper's two stages).
-ENABLED = {
-    "passive": (),
-    "fbc": ("fb_stage1",),
-    "ffc": ("ff_stage1",),
-    "fbc_ffc": ("fb_stage1", "ff_stage1"),
-    "dfbc": ("fb_stage1", "fb_stage2"),
-    "dfbc_ffc": ("fb_stage1", "fb_stage2", "ff_stage1"),
-}
 
 
 def _nodes(context, *args, **kwargs):
-    config = LaunchConfiguration("config").perform(context)
-    schedule = LaunchConfiguration("schedule").perform(context)
-    mode = LaunchConfiguration("mode").perform(context).lower().replace("+", "_")
-    duration = float(LaunchConfiguration("duration_s").perform(context))
-    on = ENABLED[mode]
-    common = {"schedule": schedule}
-    sim = {"use_sim_time": True}
+    arg = {name: LaunchConfiguration(name).perform(context) for name in (
+        "config", "schedule", "mode", "duration_s", "namespace", "composed", "rt_priority",
+        "excite", "excite_active")}
+    spec = define_graph(load_config(arg["config"]), schedule=arg["schedule"],
+                        mode=parse_mode(arg["mode"]), namespace=arg["namespace"],
+                        duration_s=float(arg["duration_s"]),
+                        excite=[s.strip() for s in arg["excite"].split(",") if s.strip()],
+                        excite_active=arg["excite_active"].lower() in ("true", "1", "yes"))
+    run_dir = tempfile.mkdtemp(prefix="dcsms-launch-")
+    params = os.path.join(run_dir, "params.yaml")
+    with open(params, "w") as f:
+        yaml.safe_dump(spec.params_document(), f, sort_keys=False)
+    if arg["composed"].lower() in ("true", "1", "yes"):
+        graph = os.path.join(run_dir, "graph.yaml")
+        with open(graph, "w") as f:
+            yaml.safe_dump(spec.to_dict(), f, sort_keys=False)
+        return [ExecuteProcess(cmd=[sys.executable, "-m", "dcsms_ros.nodes.container",
+                                    "--graph", graph, "--params-file", params,
+                                    "--rt-priority", arg["rt_priority"]], output="screen")]
     # read by dcsms_ros.nodes.runtime before rclpy starts (every thread inherits it)
-    rt = {"DCSMS_RT_PRIORITY": LaunchConfiguration("rt_priority").perform(context)}
-    nodes = [
-        Node(package=PACKAGE, executable="plant_simulator", name="plant_simulator",
-             namespace=NAMESPACE, parameters=[config, common, {"duration_s": duration}],
-             output="screen", additional_env=rt),
-        Node(package=PACKAGE, executable="sensor_decoupling", name="sensor_decoupling",
-             namespace=NAMESPACE, parameters=[config, common, sim], output="screen",
-             additional_env=rt),
-        Node(package=PACKAGE, executable="mode_switch", name="mode_switch",
-             namespace=NAMESPACE, parameters=[config, common, {"initial_mode": mode}],
-             output="screen"),
-        Node(package=PACKAGE, executable="feedforward_controller", name="ff_stage1",
-             namespace=NAMESPACE,
-             parameters=[config, common, sim, {"enabled": "ff_stage1" in on}], output="screen",
-             additional_env=rt),
-    ]
-    for i in range(1, NUM_STAGES + 1):
-        cid = f"fb_stage{i}"
-        nodes.append(Node(package=PACKAGE, executable="feedback_controller", name=cid,
-                          namespace=NAMESPACE,
-                          parameters=[config, common, sim, {"stage": i, "enabled": cid in on}],
-                          output="screen", additional_env=rt))
-    excite = [s.strip() for s in LaunchConfiguration("excite").perform(context).split(",")
-              if s.strip()]
-    if excite:  # the excitation node, summed by the plant (its `excitation` parameter)
-        active = LaunchConfiguration("excite_active").perform(context).lower() == "true"
-        nodes[0] = Node(package=PACKAGE, executable="plant_simulator", name="plant_simulator",
-                        namespace=NAMESPACE, parameters=[config, common, {
-                            "duration_s": duration, "excitation": True}],
-                        output="screen", additional_env=rt)
-        nodes.append(Node(package=PACKAGE, executable="excitation", name="excitation",
-                          namespace=NAMESPACE, parameters=[config, common, sim, {
-                              "spec": excite, "active": active, "duration_s": duration}],
-                          output="screen", additional_env=rt))
-    return nodes
+    rt = {RT_PRIORITY_ENV: arg["rt_priority"]}
+    return [Node(package=PACKAGE, executable=n.executable, name=n.name,
+                 namespace=spec.namespace, parameters=[params], remappings=list(n.remappings),
+                 output="screen", additional_env=rt if n.control_path else {})
+            for n in spec.nodes]
 
 
 def generate_launch_description():
-    """Declare the arguments and start the six nodes."""
+    """Declare the arguments and start the graph."""
     share = get_package_share_directory(PACKAGE)
     return LaunchDescription([
         DeclareLaunchArgument("config", default_value=os.path.join(share, "config",
@@ -91,6 +71,10 @@ def generate_launch_description():
                               description="initial mode: passive fbc ffc fbc_ffc dfbc dfbc_ffc"),
         DeclareLaunchArgument("duration_s", default_value="0.0",
                               description="simulated seconds to run; 0 = until stopped"),
+        DeclareLaunchArgument("namespace", default_value="/dcsms",
+                              description="namespace of every topic and service of the graph"),
+        DeclareLaunchArgument("composed", default_value="false",
+                              description="true: every node in one process"),
         DeclareLaunchArgument("rt_priority", default_value="0",
                               description="SCHED_FIFO priority 1-99 of the control path "
                               "(needs CAP_SYS_NICE); 0 = default scheduler"),
@@ -99,6 +83,6 @@ def generate_launch_description():
                               "stage1.z:white:5); empty = no excitation node"),
         DeclareLaunchArgument("excite_active", default_value="true",
                               description="start the excitation with the run (else "
-                              "/dcsms/excitation/enable starts it)"),
+                              "<namespace>/excitation/enable starts it)"),
         OpaqueFunction(function=_nodes),
     ])

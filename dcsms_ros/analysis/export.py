@@ -18,7 +18,7 @@ topic                           type                        content
 
 Bag time and header stamp of sample k are both its sim time ``k * dt`` in ns (plus ``t0_ns``).
 ``/clock`` is left out by default because the recorder leaves it out by default, so a batch
-bag and a graph recording hold the same topics. ``/dcsms/diagnostics`` is not synthesised (the
+bag and a graph recording hold the same topics. ``/diagnostics`` is not synthesised (the
 batch run's fault counters are returned by :func:`export_result` instead). A 1-DOF run fills
 only the z component (index 2) of each twist and wrench.
 

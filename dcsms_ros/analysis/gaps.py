@@ -17,7 +17,7 @@ time gap
     over the first :data:`WARMUP` intervals, which are then re-checked; afterwards each interval
     is checked as it arrives, so memory stays constant on long recordings.
 
-Both checks assume one publisher per topic; for a topic with several (``/dcsms/diagnostics``,
+Both checks assume one publisher per topic; for a topic with several (``/diagnostics``,
 where every node publishes at its own period) sequence numbers and stamps interleave, so both
 are switched off (``checked = False``) and only the count is reported.
 """

@@ -11,6 +11,8 @@ from typing import Any
 
 from dcsms_ros.errors import DcsmsError
 
+#: Without a terminal, seconds between two progress lines (and before the first).
+PIPE_PERIOD_S = 10.0
 #: Bags with fewer messages finish in about a second: no progress bar for them.
 PROGRESS_MIN_MESSAGES = 200_000
 
@@ -45,13 +47,14 @@ def register(subparsers: Any) -> None:
 
 
 class _ProgressBar:
-    """A one-line text bar on stderr (only when stderr is a terminal or the bag is long)."""
+    """Progress of a long bag on stderr: a redrawn bar on a terminal; elsewhere (a log, a pipe)
+    a whole line every :data:`PIPE_PERIOD_S`, the first after that long, so a bag that fails
+    early gives its one-line error and nothing else."""
 
     def __init__(self, stream: Any = None) -> None:
-        # None: the sys.stderr of the moment (not the one of import time, which a caller
-        # such as pytest may have replaced and closed since)
-        self._stream = stream
-        self.last = 0.0
+        self._stream = stream  # None: sys.stderr as it is when the bar is first drawn
+        self.tty: bool | None = None
+        self.last = time.monotonic()
         self.shown = False
 
     @property
@@ -61,16 +64,21 @@ class _ProgressBar:
     def __call__(self, done: int, total: int) -> None:
         if total < PROGRESS_MIN_MESSAGES:
             return
+        if self.tty is None:
+            self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+            if self.tty:
+                self.last = 0.0
         now = time.monotonic()
-        if done < total and now - self.last < 0.2:
+        period = 0.2 if self.tty else PIPE_PERIOD_S
+        if now - self.last < period and (done < total or not self.shown):
             return
         self.last = now
         frac = min(done / total, 1.0) if total else 1.0
         bar = "#" * int(30 * frac)
-        self.stream.write(f"\rreading [{bar:<30}] {100 * frac:5.1f}% ({done}/{total} msgs)")
+        text = f"reading [{bar:<30}] {100 * frac:5.1f}% ({done}/{total} msgs)"
+        self.stream.write(f"\r{text}" + ("\n" if done >= total else "") if self.tty
+                          else text + "\n")
         self.shown = True
-        if done >= total:
-            self.stream.write("\n")
         self.stream.flush()
 
 

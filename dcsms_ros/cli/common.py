@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -111,6 +112,84 @@ def load_cfg(args: argparse.Namespace) -> SystemConfig:
     return load_config(path, overrides)
 
 
+def parse_schedule(text: str) -> list[tuple[float, Any]]:
+    """``"T:MODE,T:MODE"`` -> [(time s, Mode)], sorted; raises DcsmsError on bad items."""
+    from dcsms_ros.core.modes import parse_mode
+
+    out = []
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        t_text, sep, name = item.partition(":")
+        try:
+            t = float(t_text)
+        except ValueError:
+            t = float("nan")
+        if not sep or not t >= 0.0:
+            raise DcsmsError(f"--schedule {item!r}: expected TIME:MODE with TIME >= 0 s")
+        out.append((t, parse_mode(name)))
+    return sorted(out, key=lambda e: e[0])
+
+
+def model_check_lines(cfg: SystemConfig) -> list[str]:
+    """The model's verdict on every mode: one line per failing mode, or one line saying all six
+    are stable with margins. The verdict is a function of the configuration and of the check's
+    code, so it is kept in ``$XDG_CACHE_HOME/dcsms`` (default ``~/.cache``) under their hash:
+    a repeated run of the same configuration does not spend seconds recomputing it."""
+    import hashlib
+
+    from dcsms_ros import core
+
+    src = b"".join((Path(core.__file__).parent / f).read_bytes() for f in (
+        "check.py", "loop_model.py", "margins.py", "spectra.py", "config.py", "schema.py"))
+    key = hashlib.sha256(src + json.dumps(cfg.params, sort_keys=True, default=str).encode())
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "dcsms" / \
+        f"check-{key.hexdigest()[:32]}.json"
+    try:
+        return list(json.loads(cache.read_text()))
+    except (OSError, ValueError):
+        pass
+    from dcsms_ros.core.check import check_config
+
+    bad = [c for c in check_config(cfg) if not c.ok]
+    lines = [f"model check: {c.mode.label}: {'; '.join(c.failures)}" for c in bad] or [
+        "model check: all six modes stable with margins"]
+    try:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        tmp = cache.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(lines))
+        tmp.replace(cache)
+    except OSError:
+        pass  # a read-only home: no cache, same verdict
+    return lines
+
+
+def print_model_check(cfg: SystemConfig) -> None:
+    """Print :func:`model_check_lines` (and go on)."""
+    for line in model_check_lines(cfg):
+        print(line, flush=True)
+
+
+def parse_excitations(cfg: Any, texts: Sequence[str]) -> list[Any]:
+    """``--excite`` texts -> checked :class:`~dcsms_ros.core.excitation.ExcitationSpec` list."""
+    from dcsms_ros.core.excitation import check_specs, parse_spec
+
+    specs = [parse_spec(t) for t in texts]
+    check_specs(cfg, specs)
+    return specs
+
+
+def plant_config(cfg: Any, texts: Sequence[str]) -> Any:
+    """The plant of ``--plant-set NAME=VALUE`` overrides (None without any), checked against
+    ``cfg`` (:func:`~dcsms_ros.core.simulator.check_plant`)."""
+    from dcsms_ros.core.config import parse_override, with_overrides
+    from dcsms_ros.core.simulator import check_plant
+
+    if not texts:
+        return None
+    plant = with_overrides(cfg, dict(parse_override(t) for t in texts))
+    check_plant(cfg, plant)
+    return plant
+
+
 def print_json(obj: Any) -> None:
     """Print ``obj`` as one strict-JSON document on stdout."""
     print(json.dumps(jsonable(obj), allow_nan=False))
@@ -130,5 +209,7 @@ def plot_dir(path: Path) -> Path:
 
 __all__ = [
     "add_config_options", "add_margin_options", "add_output_options", "default_config_path",
-    "find_share_file", "jsonable", "load_cfg", "plot_dir", "print_json", "share_candidates",
+    "find_share_file", "jsonable", "load_cfg", "model_check_lines", "parse_excitations",
+    "parse_schedule", "plant_config", "plot_dir", "print_json", "print_model_check",
+    "share_candidates",
 ]

@@ -1,24 +1,23 @@
 """``dcsms demo``: the main job in one command.
 
-Starts the node graph in lockstep with recording, cycles the paper's six control modes through
-the mode-switch services, analyses the bag and prints the paper's Table 4 with a verdict on the
-ordering in Z. ``--engine batch`` does the same without ROS (core batch engine + a mode schedule).
+Starts the node graph in lockstep with recording (``--composed``: every node in one process,
+as ``make demo`` runs it), cycles the paper's six control modes through the mode-switch services
+(each switch lands on its scheduled sample, so the run equals the batch engine's), analyses the
+bag and prints the paper's Table 4 with a verdict on the ordering in Z. ``--engine batch`` does
+the same without ROS (the streaming batch engine with the same mode schedule).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
-import signal
-import subprocess
-import sys
 import time
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
-from dcsms_ros.cli.common import add_config_options, load_cfg
+from dcsms_ros.cli.common import add_config_options, load_cfg, print_model_check
+from dcsms_ros.cli.up import add_deploy_options, build_graph, check_deploy_options, launch
 from dcsms_ros.core.modes import ALL_MODES, Mode, parse_mode
 from dcsms_ros.errors import DcsmsError
 
@@ -47,11 +46,9 @@ def register(subparsers: Any) -> None:
                    help="simulated seconds dropped after each switch (default 1, >= fade)")
     p.add_argument("--engine", choices=("graph", "batch"), default="graph",
                    help="graph: ROS nodes in lockstep (default); batch: core engine, no ROS")
-    p.add_argument("--rt-priority", type=int, default=0, metavar="N",
-                   help="graph engine: SCHED_FIFO priority of the control path, as `dcsms up "
-                   "--rt-priority` (0: default scheduler)")
     p.add_argument("--modes", default=",".join(m.label for m in ALL_MODES), metavar="LIST",
                    help="comma-separated modes, first is the reference's run order")
+    add_deploy_options(p)
     p.set_defaults(func=run)
 
 
@@ -62,9 +59,9 @@ def run(args: argparse.Namespace) -> int:
         raise DcsmsError("--modes: no mode given")
     if not (args.segment > 0 and args.settle >= 0):
         raise DcsmsError("--segment must be > 0 and --settle >= 0")
-    if not 0 <= args.rt_priority <= 99:
-        raise DcsmsError(f"--rt-priority {args.rt_priority}: must be 0 (off) or 1..99")
+    check_deploy_options(args)
     cfg = load_cfg(args)
+    print_model_check(cfg)
     out = _prepare(args.out)
     bag = out / "bag"
     span = args.segment + args.settle
@@ -99,109 +96,26 @@ def _prepare(out: Path) -> Path:
     return out
 
 
+def _schedule(modes: list[Mode], span: float) -> list[tuple[float, Mode]]:
+    return [(i * span, m) for i, m in enumerate(modes) if i > 0]
+
+
 def _batch(cfg: Any, modes: list[Mode], span: float, total: float, bag: Path) -> None:
-    from dcsms_ros.analysis.export import write_result_bag
-    from dcsms_ros.core.engine import simulate
+    from dcsms_ros.analysis.stream import stream_bag
 
-    schedule = [(i * span, m) for i, m in enumerate(modes) if i > 0]
-    res = simulate(cfg, modes[0], total, schedule=schedule)
-    write_result_bag(res, bag)
-
-
-def analysis_topics(num_stages: int) -> list[str]:
-    """What ``dcsms analyze`` reads: recording only these keeps the lockstep graph fast (the
-    plant skips its truth topics when nobody subscribes, the recorder has a third of the work)."""
-    from dcsms_ros.core import topics
-
-    return ([topics.velocity_topic(b) for b in topics.body_names(num_stages)]
-            + [topics.ACTUATORS_APPLIED, topics.MODE, topics.CONFIG])
+    stream_bag(cfg, modes[0], total, bag, schedule=_schedule(modes, span))
 
 
 def _graph(args: argparse.Namespace, cfg: Any, modes: list[Mode], span: float, total: float,
            bag: Path, out: Path) -> None:
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    cmd = [sys.executable, "-m", "dcsms_ros.cli", "up", "--lockstep", "--mode", modes[0].label,
-           "--duration", f"{total + 0.05:g}", "--record", str(bag),
-           "--record-topics", *analysis_topics(cfg.plant.num_stages),
-           "--log-dir", str(out / "logs"), "--rt-priority", str(args.rt_priority)]
-    if args.config is not None:
-        cmd += ["--config", str(args.config)]
-    for s in args.overrides:
-        cmd += ["--set", s]
-    log = (out / "up.log").open("w")
-    up = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-    try:
-        _drive(up, modes, span, total)
-    except BaseException:
-        _stop(up)
-        raise
-    finally:
-        log.close()
-    if up.returncode != 0:
-        tail = (out / "up.log").read_text().strip().splitlines()[-5:]
-        raise DcsmsError(f"the graph exited with status {up.returncode}: "
-                         f"{' | '.join(tail)} (log {out / 'up.log'})")
-
-
-def _drive(up: subprocess.Popen[bytes], modes: list[Mode], span: float, total: float) -> None:
-    """Follow sim time on /clock and switch modes on schedule until the graph stops."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import qos_profile_sensor_data
-    from rclpy.signals import SignalHandlerOptions
-    from rosgraph_msgs.msg import Clock
-    from std_srvs.srv import Trigger
-
-    from dcsms_ros.core import topics
-
-    ctx = Context()
-    rclpy.init(args=[], context=ctx, signal_handler_options=SignalHandlerOptions.NO)
-    node = rclpy.create_node(f"dcsms_demo_{os.getpid()}", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    now = {"t": -1.0}
-
-    def on_clock(msg: Clock) -> None:
-        now["t"] = msg.clock.sec + msg.clock.nanosec * 1e-9
-
-    node.create_subscription(Clock, topics.CLOCK, on_clock, qos_profile_sensor_data)
-    clients = {m: node.create_client(Trigger, topics.set_mode_service(m.value)) for m in modes}
-    t0 = time.monotonic()
-    nxt, last_print = 1, 0.0
-    pending: Any = None
-    try:
-        while up.poll() is None:
-            ex.spin_once(timeout_sec=0.05)
-            t = now["t"]
-            if pending is not None and pending.done():
-                res = pending.result()
-                if res is None or not res.success:
-                    raise DcsmsError(f"mode switch failed: {res.message if res else 'no answer'}")
-                pending = None
-            if pending is None and nxt < len(modes) and t >= nxt * span:
-                pending = clients[modes[nxt]].call_async(Trigger.Request())
-                nxt += 1
-            wall = time.monotonic() - t0
-            if wall - last_print >= 5.0 and t >= 0:
-                last_print = wall
-                mode = modes[min(int(t // span), len(modes) - 1)].label
-                print(f"  sim {t:6.1f} / {total:g} s  mode {mode:9s} wall {wall:5.0f} s "
-                      f"({t / max(wall, 1e-9):.2f}x real time)", flush=True)
-    finally:
-        ex.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
-
-
-def _stop(up: subprocess.Popen[bytes]) -> None:
-    if up.poll() is None:
-        up.send_signal(signal.SIGINT)
-        try:
-            up.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            os.killpg(up.pid, signal.SIGKILL)
-            up.wait()
+    schedule = _schedule(modes, span)
+    spec = build_graph(cfg, args, "lockstep", modes[0], total, schedule)
+    recorded = spec.analysis_topics()
+    spec = build_graph(cfg, args, "lockstep", modes[0], total, schedule,
+                       observers=[t for t in spec.stream_topics() if t in recorded])
+    status = launch(spec, args, schedule, bag, recorded, out / "logs", True, cfg.plant.rate_hz)
+    if status != 0:
+        raise DcsmsError(f"the graph exited with status {status} (logs in {out / 'logs'})")
 
 
 def _verdict(summary: Any) -> bool:

@@ -3,19 +3,18 @@
 The recorder runs in this process (:func:`dcsms_ros.nodes.recorder.record`); SIGINT and SIGTERM
 end it cleanly with exit status 0 after every queued message was written, and the per-topic
 counts and gaps are printed on stdout. ``dcsms up --record OUT`` starts the same command as a
-child process (:func:`recorder_command`) and stops it with SIGINT.
+child process (:func:`dcsms_ros.nodes.deploy.recorder_command`) and stops it with SIGINT.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from dcsms_ros.cli.common import print_json
 from dcsms_ros.errors import BagError, DcsmsError
+from dcsms_ros.nodes.deploy import recorder_command
 
 STORAGES = ("mcap", "sqlite3")
 
@@ -40,22 +39,6 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", action="store_true",
                    help="print the counts and gaps as JSON on stdout")
     p.set_defaults(func=run)
-
-
-def recorder_command(out: str | Path, topics: Sequence[str] | None = None,
-                     storage: str = "mcap", duration_s: float | None = None) -> list[str]:
-    """The argv that runs ``dcsms record`` as a child process with this interpreter.
-
-    Start it with ``subprocess.Popen`` before the graph's publishers, stop it with
-    ``proc.send_signal(signal.SIGINT)`` (or SIGTERM) and ``proc.wait()``: exit 0 means the bag
-    is complete; the report is on the child's stdout.
-    """
-    cmd = [sys.executable, "-m", "dcsms_ros.cli", "record", str(out), "--storage", storage]
-    if topics:
-        cmd += ["--topics", *topics]
-    if duration_s is not None:
-        cmd += ["--duration", repr(float(duration_s))]
-    return cmd
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,24 +1,34 @@
 """``dcsms sim``: simulate the closed loop and write the result as a bag.
 
-``--engine batch`` runs :func:`dcsms_ros.core.engine.simulate` (no ROS) and writes the topics
-a graph recording holds (:mod:`dcsms_ros.analysis.export`), with bag times and header stamps on
-sim time, so ``dcsms analyze`` treats both alike. ``--engine graph`` runs the ROS graph in
-lockstep while recording (``dcsms up --lockstep --record``).
+``--engine batch`` runs the core engine without ROS, streaming (:mod:`dcsms_ros.analysis.
+stream`): blocks of simulated time are written while the next is computed, so memory stays
+bounded whatever the duration; the bag holds the topics a graph recording holds, with bag times
+and header stamps on sim time, so ``dcsms analyze`` treats both alike. A run whose bag would not
+fit on the disk, or whose duration is absurd, is refused before anything is written.
+``--engine graph`` runs the ROS graph in lockstep while recording (``dcsms up --lockstep
+--record``), one process per node or ``--composed``; a ``--schedule`` goes through the real
+mode-switch services and lands on the same samples as in the batch engine, so both bags hold
+the same numbers.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
-import importlib.util
 import sys
 import time
 import warnings
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from dcsms_ros.cli.common import add_config_options, load_cfg
+from dcsms_ros.cli.common import (
+    add_config_options,
+    load_cfg,
+    parse_excitations,
+    parse_schedule,
+    plant_config,
+    print_model_check,
+)
+from dcsms_ros.cli.up import add_deploy_options, build_graph, check_deploy_options, launch
 from dcsms_ros.errors import BagError, DcsmsError
 
 #: Runs with more samples than this show a progress bar on stderr.
@@ -64,24 +74,8 @@ def register(subparsers: Any) -> None:
                    help="rosbag2 storage plugin (default: mcap)")
     p.add_argument("--clock", action="store_true",
                    help="also write /clock (left out by default, as the recorder does)")
+    add_deploy_options(p)
     p.set_defaults(func=run)
-
-
-def parse_schedule(text: str) -> list[tuple[float, Any]]:
-    """``"T:MODE,T:MODE"`` -> [(time s, Mode)], sorted; raises DcsmsError on bad items."""
-    from dcsms_ros.core.modes import parse_mode
-
-    out = []
-    for item in filter(None, (s.strip() for s in text.split(","))):
-        t_text, sep, name = item.partition(":")
-        try:
-            t = float(t_text)
-        except ValueError:
-            t = float("nan")
-        if not sep or not t >= 0.0:
-            raise DcsmsError(f"--schedule {item!r}: expected TIME:MODE with TIME >= 0 s")
-        out.append((t, parse_mode(name)))
-    return sorted(out, key=lambda e: e[0])
 
 
 class _Bar:
@@ -103,19 +97,25 @@ class _Bar:
 
 def run(args: argparse.Namespace) -> int:
     """Handler: simulate, write the bag, print a one-line summary."""
+    from dcsms_ros.core.config import with_overrides
     from dcsms_ros.core.modes import parse_mode
 
     if args.out.exists() or args.out.with_name(args.out.name + ".partial").exists():
         raise BagError(f"{args.out}: exists already, not overwriting")
-    if not args.duration > 0:
-        raise DcsmsError(f"--duration {args.duration}: must be > 0")
     mode = parse_mode(args.mode)
     schedule = parse_schedule(args.schedule)
+    check_deploy_options(args)
     cfg = load_cfg(args)
+    if args.seed is not None:  # the seed is a parameter of the graph's plant
+        cfg = with_overrides(cfg, {"disturbance.seed": args.seed})
+    from dcsms_ros.analysis.stream import check_run
+
+    check_run(cfg, args.duration, args.out)  # nothing is written for a hopeless run
     specs = parse_excitations(cfg, args.excite)
     plant = plant_config(cfg, args.plant_overrides)
     if args.engine == "graph":
-        return _graph(args)
+        return _graph(args, cfg, mode, schedule)
+    print_model_check(cfg)
     ground = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -124,100 +124,61 @@ def run(args: argparse.Namespace) -> int:
 
             bag, topic = parse_ground_spec(args.ground_from)
             ground = load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)
-        res, counts, t_sim, t_write = _batch(args, cfg, mode, schedule, ground, specs, plant)
+        from dcsms_ros.analysis.stream import stream_bag
+
+        t0 = time.perf_counter()
+        res = stream_bag(cfg, mode, args.duration, args.out, schedule=schedule, ground=ground,
+                         storage=args.storage, clock=args.clock,
+                         progress=_Bar("simulate", args.duration * cfg.plant.rate_hz
+                                       > PROGRESS_MIN_STEPS), excite=specs, plant=plant)
+        wall = max(time.perf_counter() - t0, 1e-9)
     for w in caught:
         print(f"dcsms: warning: {w.message}", file=sys.stderr)
-    total = sum(counts.values())
-    print(f"wrote {args.out}: {res.t.size} samples ({args.duration:g} s), {total} messages on "
-          f"{len(counts)} topics; simulate {t_sim:.1f} s ({args.duration / t_sim:.1f}x real "
-          f"time), write {t_write:.1f} s ({total / t_write:.0f} msg/s)")
+    total = sum(res.counts.values())
+    print(f"wrote {args.out}: {res.samples} samples ({args.duration:g} s), {total} messages on "
+          f"{len(res.counts)} topics in {wall:.1f} s ({args.duration / wall:.1f}x real time, "
+          f"{total / wall:.0f} msg/s)")
+    if res.trip is not None:
+        print(f"dcsms: warning: instability trip at t={(res.trip.sample + 1) / cfg.plant.rate_hz:g}"
+              f" s: {res.trip.reason}; Passive from there"
+              + (f"; refused: {', '.join(f'{m} at sample {k}' for k, m in res.refused)}"
+                 if res.refused else ""), file=sys.stderr)
     if res.counters.get("saturations"):
         print(f"dcsms: warning: {res.counters['saturations']} actuator saturation(s)",
               file=sys.stderr)
     return 0
 
 
-def parse_excitations(cfg: Any, texts: Sequence[str]) -> list[Any]:
-    """``--excite`` texts -> checked :class:`~dcsms_ros.core.excitation.ExcitationSpec` list."""
-    from dcsms_ros.core.excitation import check_specs, parse_spec
+def _graph(args: argparse.Namespace, cfg: Any, mode: Any, schedule: list[Any]) -> int:
+    """The ROS graph in lockstep, recorded (``dcsms up --lockstep --record OUT``).
 
-    specs = [parse_spec(t) for t in texts]
-    check_specs(cfg, specs)
-    return specs
-
-
-def plant_config(cfg: Any, texts: Sequence[str]) -> Any:
-    """The plant of ``--plant-set NAME=VALUE`` overrides (None without any), checked against
-    ``cfg`` (:func:`~dcsms_ros.core.simulator.check_plant`)."""
-    from dcsms_ros.core.config import parse_override, with_overrides
-    from dcsms_ros.core.simulator import check_plant
-
-    if not texts:
-        return None
-    plant = with_overrides(cfg, dict(parse_override(t) for t in texts))
-    check_plant(cfg, plant)
-    return plant
-
-
-def _batch(args: argparse.Namespace, cfg: Any, mode: Any, schedule: Sequence[Any],
-           ground: Any, specs: Sequence[Any], plant: Any
-           ) -> tuple[Any, dict[str, int], float, float]:
-    from dcsms_ros.analysis.export import write_result_bag
-    from dcsms_ros.core.engine import simulate
-    from dcsms_ros.core.excitation import excitation_signal
-
-    show = args.duration * cfg.plant.rate_hz > PROGRESS_MIN_STEPS
-    t0 = time.perf_counter()
-    bar = _Bar("simulate", show)
-    steps = int(round(args.duration * cfg.plant.rate_hz))
-    seed = cfg.disturbance.seed if args.seed is None else args.seed
-    excite = excitation_signal(cfg, specs, steps, seed) if specs else None
-    res = simulate(cfg, mode, args.duration, seed=args.seed, schedule=schedule, ground=ground,
-                   progress=bar, excite=excite, plant=plant)
-    bar(1.0)
-    t1 = time.perf_counter()
-    counts = write_result_bag(res, args.out, args.storage, clock=args.clock,
-                              progress=_Bar("write", show))
-    return res, counts, max(t1 - t0, 1e-9), max(time.perf_counter() - t1, 1e-9)
-
-
-def _graph(args: argparse.Namespace) -> int:
-    """The ROS graph in lockstep, recorded: ``dcsms up --lockstep --record OUT``.
-
-    ``--seed`` becomes ``--set disturbance.seed=N`` (the batch engine's default seed too). The
-    ``--ground-from`` becomes the plant's ``ground_from`` parameter, ``--excite`` the excitation
-    node (active from sample 0, so the graph adds what the batch engine adds). The graph cannot
-    take a mode schedule (switches go through the services at wall-clock times) or a plant that
-    differs from the configuration, so those are refused.
+    ``--seed`` becomes the plant's ``disturbance.seed``, ``--ground-from`` its ``ground_from``
+    and ``--excite`` the excitation node (active from sample 0, so the graph adds what the
+    batch engine adds); the recording holds the batch engine's topics.
     """
-    if importlib.util.find_spec("dcsms_ros.cli.up") is None:
-        raise DcsmsError("--engine graph: not available (needs `dcsms up`); use --engine batch")
-    for flag, value in (("--schedule", args.schedule), ("--clock", args.clock),
+    for flag, value in (("--clock", args.clock), ("--storage sqlite3",
+                                                 args.storage != "mcap"),
                         ("--plant-set", args.plant_overrides)):
         if value:
-            raise DcsmsError(f"--engine graph: {flag} is not supported yet; use --engine batch")
-    if args.storage != "mcap":
-        raise DcsmsError("--engine graph: only --storage mcap is supported")
-    from dcsms_ros.cli import main
-
-    argv = ["up", "--lockstep", "--record", str(args.out), "--duration", repr(args.duration),
-            "--mode", args.mode]
-    if args.config is not None:
-        argv += ["--config", str(args.config)]
-    for o in args.overrides:
-        argv += ["--set", o]
-    if args.seed is not None:
-        argv += ["--set", f"disturbance.seed={args.seed}"]
+            raise DcsmsError(f"--engine graph: {flag} is not supported; use --engine batch")
     if args.ground_from:
-        argv += ["--ground-from", args.ground_from]
-    for spec in args.excite:  # the excitation node, active from sample 0 as in the batch run
-        argv += ["--excite", spec]
+        from dcsms_ros.analysis.replay import load_ground, parse_ground_spec
+
+        bag, topic = parse_ground_spec(args.ground_from)
+        load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)
+    print_model_check(cfg)
+    spec = build_graph(cfg, args, "lockstep", mode, args.duration, schedule)
+    nm = spec.names
+    recorded = [nm.config, nm.mode, *spec.stream_topics()]
+    spec = build_graph(cfg, args, "lockstep", mode, args.duration, schedule,
+                       observers=spec.stream_topics())
     t0 = time.perf_counter()
-    status = main(argv)
+    status = launch(spec, args, schedule, args.out, recorded, None, True, cfg.plant.rate_hz)
     if status == 0:
-        print(f"wrote {args.out}: {args.duration:g} s in lockstep in "
-              f"{time.perf_counter() - t0:.1f} s")
+        wall = time.perf_counter() - t0
+        print(f"wrote {args.out}: {args.duration:g} s in lockstep in {wall:.1f} s "
+              f"({args.duration / wall:.2f}x real time)")
     return status
 
 
-__all__ = ["parse_excitations", "parse_schedule", "plant_config", "register", "run"]
+__all__ = ["register", "run"]

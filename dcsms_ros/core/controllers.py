@@ -285,5 +285,21 @@ def make_controller(cfg: SystemConfig, controller_id: str,
     return FeedbackLoop(cfg, i, enabled)
 
 
+def retuned(old: FeedbackLoop | FeedforwardLoop, cfg: SystemConfig, controller_id: str,
+            keep_fade: bool = True) -> FeedbackLoop | FeedforwardLoop:
+    """``old`` rebuilt from a new tuning ``cfg``, keeping what state can be kept: the gain
+    ramp (unless the fade time changed: ``keep_fade`` False), and with the same filter
+    structure (a gain or corner tweak) the delay states, so the output continues instead of
+    restarting from rest; the fault counters carry over."""
+    new = make_controller(cfg, controller_id, enabled=old.enabled)
+    if keep_fade:
+        new.fader = old.fader
+    so, sn = old.filter.get_state(), new.filter.get_state()
+    if so.shape == sn.shape:
+        new.filter.set_state(so)
+    new.saturations, new.nonfinite = old.saturations, old.nonfinite
+    return new
+
+
 __all__ = ["Allocator", "Fader", "FeedbackLoop", "FeedforwardLoop", "make_controller",
-           "suspension_totals"]
+           "retuned", "suspension_totals"]

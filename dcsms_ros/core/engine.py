@@ -143,6 +143,7 @@ class Simulation:
             check_plant(cfg, plant)
         self.sim = PlantSimulator(plant or cfg, seed=seed, ground=ground, table=table)
         self.excite = _excite_array(cfg, excite)
+        self._exc_offset = 0  # sample of the first row of self.excite
         self._exc_stop: int | None = None  # first sample without excitation (a trip)
         self.dec = Decoupler(cfg)
         active = enabled_controllers(mode, n)
@@ -200,11 +201,19 @@ class Simulation:
         if self.excite is None:
             return None
         out = np.zeros((m, *self.excite.shape[1:]))
-        stop = self.excite.shape[0] if self._exc_stop is None else min(self._exc_stop,
-                                                                       self.excite.shape[0])
-        if k0 < stop:
-            out[:min(m, stop - k0)] = self.excite[k0:min(k0 + m, stop)]
+        end = self._exc_offset + self.excite.shape[0]
+        stop = end if self._exc_stop is None else min(self._exc_stop, end)
+        lo = max(k0, self._exc_offset)
+        if lo < stop and lo < k0 + m:
+            hi = min(k0 + m, stop)
+            out[lo - k0:hi - k0] = self.excite[lo - self._exc_offset:hi - self._exc_offset]
         return out
+
+    def feed_excitation(self, rows: Array) -> None:
+        """Streaming: the excitation of the next block, samples ``k .. k + len(rows) - 1``
+        (N, N*m; shape (m, N, dof)), in place of a whole run's record."""
+        self.excite = _excite_array(self.cfg, rows)
+        self._exc_offset = self.k
 
     def run(self, steps: int, progress: Callable[[float], None] | None = None
             ) -> SimResult | None:

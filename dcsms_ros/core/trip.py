@@ -61,28 +61,43 @@ class TripMonitor:
         self._zi = np.zeros((self.sos.shape[0], 2, self.channels))
         self._ring = np.zeros((self.window, self.channels))
         self._pos = 0
+        self._started = False
         self.count = 0
         self.rms = np.zeros(self.channels)
 
-    def update(self, block: Array) -> Array:
-        """Feed samples ``(K, channels)`` (m/s); return the RMS over the last window (m/s)."""
+    def filter(self, block: Array) -> Array:
+        """Band-pass samples ``(K, channels)`` (m/s), carrying the filter state; the same
+        numbers however the samples are split into calls."""
         x = np.asarray(block, dtype=np.float64).reshape(-1, self.channels)
         if x.shape[0] == 0:
-            return self.rms
+            return x
         # a NaN or an absurd value (> 10 m/s) is a corrupt message, not instability
         with np.errstate(invalid="ignore"):
             x = np.where(np.abs(x) <= 10.0, x, 0.0)
-        if self.count == 0:
+        if not self._started:
             # start the band-pass in the steady state of the first sample: a velocity offset
             # (sensor drift) must not ring through it as a false trip at start or after a reset
             self._zi = sosfilt_zi(self.sos)[:, :, None] * x[0][None, None, :]
+            self._started = True
         y, self._zi = sosfilt(self.sos, x, axis=0, zi=self._zi)
+        return np.asarray(y)
+
+    def update(self, block: Array) -> Array:
+        """Feed samples ``(K, channels)`` (m/s); return the RMS over the last window (m/s)."""
+        return self.window_rms(self.filter(block))
+
+    def window_rms(self, y: Array) -> Array:
+        """Add band-passed samples ``(K, channels)`` (from :meth:`filter`) to the window;
+        return the RMS over the last window (m/s)."""
+        if y.shape[0] == 0:
+            return self.rms
+        k = y.shape[0]
         y = y[-self.window:]
         n = y.shape[0]
         idx = (self._pos + np.arange(n)) % self.window
         self._ring[idx] = y * y
         self._pos = (self._pos + n) % self.window
-        self.count += x.shape[0]
+        self.count += k
         filled = min(self.count, self.window)
         self.rms = np.sqrt(self._ring.sum(axis=0) / filled)
         return self.rms
@@ -148,6 +163,9 @@ class TripChecker:
         """Feed stage velocities ``(K, N, dof)`` (m/s, samples in order) until a checkpoint
         trips.
 
+        Every complete checkpoint block among them is band-passed in one call per stage (the
+        same numbers as block by block), then judged in order.
+
         Returns
         -------
         consumed : int
@@ -155,30 +173,35 @@ class TripChecker:
         trip : Trip or None
         """
         v = np.asarray(velocity, dtype=np.float64)
-        used = 0
-        while used < v.shape[0]:
-            need = self.every - self._pending.shape[0]
-            take = v[used:used + need]
-            used += take.shape[0]
-            self.k += take.shape[0]
-            if take.shape[0] < need:
-                self._pending = np.concatenate([self._pending, take])
-                break
-            block = np.concatenate([self._pending, take]) if self._pending.size else take
-            self._pending = np.zeros((0, len(self.monitors), self.dof))
-            trip = self._judge(block)
+        p = self._pending.shape[0]
+        blocks = (p + v.shape[0]) // self.every
+        if blocks == 0:
+            self._pending = np.concatenate([self._pending, v]) if p else v.copy()
+            self.k += v.shape[0]
+            return v.shape[0], None
+        take = blocks * self.every - p
+        x = np.concatenate([self._pending, v[:take]]) if p else v[:take]
+        ys = [mon.filter(x[:, i]) for i, mon in enumerate(self.monitors)]
+        for j in range(blocks):
+            rows = slice(j * self.every, (j + 1) * self.every)
+            trip = self._judge([y[rows] for y in ys], self.k - p + (j + 1) * self.every - 1)
             if trip is not None:
+                used = (j + 1) * self.every - p
+                self.k += used
+                self._pending = np.zeros((0, len(self.monitors), self.dof))
                 return used, trip
-        return used, None
+        self._pending = v[take:].copy()
+        self.k += v.shape[0]
+        return v.shape[0], None
 
-    def _judge(self, block: Array) -> Trip | None:
+    def _judge(self, filtered: list[Array], sample: int) -> Trip | None:
         worst: Trip | None = None
-        for i, mon in enumerate(self.monitors):
-            rms = mon.update(block[:, i])
+        for i, (mon, y) in enumerate(zip(self.monitors, filtered, strict=True)):
+            rms = mon.window_rms(y)
             if mon.tripped() and worst is None:
                 j = int(np.argmax(rms / mon.threshold))
                 lo, hi = self.control.trip_band_hz
-                worst = Trip(self.k - 1, i + 1, j, float(rms[j]),
+                worst = Trip(sample, i + 1, j, float(rms[j]),
                              f"stage{i + 1} velocity RMS {rms[j]:.3g} m/s (axis {j}) above "
                              f"{mon.threshold:g} m/s in {lo:g}-{hi:g} Hz")
         return worst

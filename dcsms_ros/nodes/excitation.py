@@ -1,19 +1,20 @@
 """Excitation node ``excitation``: a known force on one stage for identification.
 
-Publishes ``/dcsms/force/excitation`` (geometry_msgs/WrenchStamped, frame_id = the pushed stage,
-N and N*m) for every sample of the plant: it answers each ``/dcsms/sensors/raw`` sample, stamped
-like it, as a controller answers its velocity, so the plant (parameter ``excitation: true``)
-sums it with the controllers' wrenches before allocation and clipping and, in lockstep, waits
-for it like for a controller (same timeout and absence rules; in real time a stale excitation
-counts as zero after ``control.input_timeout_s``). Zero while inactive. The signal of sample k
-is :class:`~dcsms_ros.core.excitation.Excitation` of the specifications (``spec``, as
-``dcsms sim --excite``) and ``disturbance.seed``, counted from the sample it was started on: a
-run active from sample 0 adds exactly what ``dcsms sim --excite`` adds.
+Publishes ``force/excitation`` (geometry_msgs/WrenchStamped, frame_id = the pushed stage, N and
+N*m; names relative to the graph's namespace) for every sample of the plant: it answers each
+``sensors/raw`` sample, stamped like it, as a controller answers its velocity (a repeated stamp
+from the cache, :class:`~dcsms_ros.protocols.responder.StampResponder`), so the plant (parameter
+``excitation: true``) sums it with the controllers' wrenches before allocation and clipping and,
+in lockstep, waits for it like for a controller (same timeout and absence rules; in real time a
+stale excitation counts as zero after ``control.input_timeout_s``). Zero while inactive. The
+signal of sample k is :class:`~dcsms_ros.core.excitation.Excitation` of the specifications
+(``spec``, as ``dcsms sim --excite``) and ``disturbance.seed``, counted from the sample it was
+started on: a run active from sample 0 adds exactly what ``dcsms sim --excite`` adds.
 
-``~/enable`` (std_srvs/SetBool, ``/dcsms/excitation/enable``) starts (true) or stops (false) it;
-parameter ``active`` starts it with the run. It is never active while the instability trip is
-latched: ``mode_switch`` reports the latch on ``/dcsms/diagnostics`` (``tripped``), which stops
-the excitation and refuses a start until the latch is reset.
+``~/enable`` (std_srvs/SetBool, ``<namespace>/excitation/enable``) starts (true) or stops
+(false) it; parameter ``active`` starts it with the run. It is never active while the
+instability trip is latched: this graph's ``mode_switch`` reports the latch on ``/diagnostics``
+(``tripped``), which stops the excitation and refuses a start until the latch is reset.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.controller import MATCH_TIMEOUT_S
 from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import status, to_stamp
+from dcsms_ros.nodes.msgs import node_status, to_stamp
 from dcsms_ros.nodes.params import (
     FirstSampleGate,
     NodeConfig,
@@ -44,14 +45,15 @@ from dcsms_ros.nodes.params import (
 )
 from dcsms_ros.nodes.runtime import Stoppable, main_for, wait_acked
 from dcsms_ros.nodes.wire import StampedWriter, read_joint_state
+from dcsms_ros.protocols.responder import StampResponder, Verdict
 
 
 class ExcitationNode(Node, Stoppable):
     """ROS adapter around :class:`~dcsms_ros.core.excitation.Excitation`."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, node_name: str = topics.EXCITATION_ID, **kwargs) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)
-        super().__init__(topics.EXCITATION_ID, **kwargs)
+        super().__init__(node_name, **kwargs)
         self._lock = threading.RLock()
         self.hot = HotPath(self, self._lock)
         self.params = NodeConfig(self, lambda n: n == "disturbance.seed")
@@ -83,20 +85,20 @@ class ExcitationNode(Node, Stoppable):
         self.k0 = 0  # sample the excitation was started on
         self._start_pending = start  # start on the first sample (lockstep: sample 0)
         self.tripped = False
-        self.last_ns = -1
-        self._cache: bytes | None = None
-        self.samples = self.repeats = self.out_of_order = 0
-        self.pub = self.create_publisher(WrenchStamped, topics.EXCITATION,
+        self.answers: StampResponder[bytes] = StampResponder()
+        self.samples = 0
+        self.names = topics.Names(self.get_namespace())
+        self.pub = self.create_publisher(WrenchStamped, topics.LOCAL.force(topics.EXCITATION_ID),
                                          qos.stream_pub(self.lockstep))
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
-        self.hot.subscribe(JointState, topics.SENSORS_RAW, self._on_sample,
+        self.hot.subscribe(JointState, topics.LOCAL.sensors_raw, self._on_sample,
                            qos.stream_sub(self.lockstep), raw=True)
         self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diag,
                                  qos.status())
         self.create_service(SetBool, "~/enable", self._on_enable)
         self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f"excitation {', '.join(s.text for s in self.specs)} on "
-                               f"{topics.EXCITATION}, {'active' if start else 'inactive'}")
+                               f"{self.pub.topic_name}, {'active' if start else 'inactive'}")
         self.hot.start()
 
     @property
@@ -105,14 +107,11 @@ class ExcitationNode(Node, Stoppable):
 
     def _on_sample(self, buf: bytes) -> None:
         ns = read_joint_state(buf)[0]
-        if ns == self.last_ns and self._cache is not None:
-            self.repeats += 1  # a lockstep retransmission: the same answer
-            self.pub.publish(self._cache)
+        verdict = self.answers.judge(ns)
+        if verdict is Verdict.REPEAT and self.answers.cache is not None:
+            self.pub.publish(self.answers.cache)  # a lockstep retransmission: the same answer
             return
-        if ns < self.last_ns:
-            self.out_of_order += 1
-            return
-        if not self._gate.ready([self.pub], self.observed):
+        if verdict is not Verdict.NEW or not self._gate.ready([self.pub], self.observed):
             return
         k = round(ns * self.rate / 1e9)
         if self._start_pending:
@@ -123,9 +122,7 @@ class ExcitationNode(Node, Stoppable):
         if self.exc is not None:
             row = self.exc.at(k - self.k0)[self.stage - 1]
             w = row if np.isfinite(row).all() else self._zero
-        self.last_ns = ns
-        self._cache = self.writer.encode(ns, w)
-        self.pub.publish(self._cache)
+        self.pub.publish(self.answers.store(ns, self.writer.encode(ns, w)))
         self.samples += 1
 
     def _stop(self) -> None:
@@ -137,7 +134,7 @@ class ExcitationNode(Node, Stoppable):
             if request.data and self.tripped:
                 response.success = False
                 response.message = ("tripped: the excitation stays off until "
-                                    f"{topics.RESET_TRIP}")
+                                    f"{self.names.reset_trip}")
             elif request.data:
                 if not self.active:
                     self._start_pending = True  # from the next sample on
@@ -151,7 +148,7 @@ class ExcitationNode(Node, Stoppable):
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         for st in msg.status:
-            if st.name != "mode_switch":
+            if self.names.local_status(st.name) != "mode_switch":
                 continue
             tripped = any(kv.key == "tripped" and kv.value == "True" for kv in st.values)
             with self._lock:
@@ -164,13 +161,13 @@ class ExcitationNode(Node, Stoppable):
     def _report(self) -> None:
         level = DiagnosticStatus.WARN if self.tripped else DiagnosticStatus.OK
         arr = DiagnosticArray()
-        arr.header.stamp = to_stamp(max(self.last_ns, 0))
-        arr.status = [status(topics.EXCITATION_ID, level, (
+        arr.header.stamp = to_stamp(max(self.answers.last_ns, 0))
+        arr.status = [node_status(self, level, (
             "tripped: off" if self.tripped else "active" if self.active else "inactive"), {
             "active": self.active, "spec": " ".join(s.text for s in self.specs),
             "started_at_sample": self.k0 if self.exc is not None else -1,
-            "samples": self.samples, "repeats": self.repeats,
-            "out_of_order": self.out_of_order, "tripped": self.tripped})]
+            "samples": self.samples, "repeats": self.answers.repeats,
+            "out_of_order": self.answers.out_of_order, "tripped": self.tripped})]
         self.pub_diag.publish(arr)
 
     def close(self) -> None:

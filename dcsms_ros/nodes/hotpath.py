@@ -1,19 +1,26 @@
-"""Hot path: the control-path subscriptions of a node, served by their own thread.
+"""Hot path: the control-path subscriptions of a node, served by a thread of their own.
 
 rclpy's executors rebuild a wait set over *every* entity of a node (6 parameter services, the
 enable service, timers, the ``/clock`` subscription of ``use_sim_time``, ...) on each wake-up
 and dispatch each callback through a task: ~0.1-0.2 ms of Python per message, the dominant cost
-of a lockstep step (measured: ``bench/graph_bench.py``, README "Performance"). Here a node's
+of a lockstep step (measured: ``bench/graph_bench.py``, docs/performance.md). Here a node's
 per-sample subscriptions are created in a callback group that no executor ever waits on
-(:class:`DetachedGroup`); one thread per node waits on a minimal wait set holding just those
-subscriptions and a stop guard condition (as :func:`rclpy.wait_for_message` does), takes every
-queued message with ``take_message`` and runs its handler under the node's lock. Services,
-parameters, timers and ``/clock`` stay with the normal executor, which now wakes rarely.
+(:class:`DetachedGroup`); a :class:`HotLoop` thread waits on a minimal wait set holding just
+those subscriptions and a stop guard condition (as :func:`rclpy.wait_for_message` does), takes
+every queued message with ``take_message`` and runs its handler under the node's lock.
+Services, parameters, timers and ``/clock`` stay with the normal executor, which wakes rarely.
+
+One process per node: each node's :class:`HotPath` gets its own loop. Composed (several nodes
+on one context, :mod:`.container`): :func:`drive` makes one loop serve the hot paths of every
+node of the context, in one *driver* thread, so one sample cycles plant -> decoupling ->
+controllers -> plant through the nodes' real publishers and subscriptions without a thread
+switch: in one process a published message is in the other node's subscription at once, and
+the loop keeps serving until a pass over all subscriptions takes nothing.
 
 ``DCSMS_HOT_PATH=0`` in the environment turns it off: the subscriptions are then ordinary
 executor subscriptions with the same handlers (the benchmark compares both in one run).
 Subscriptions that nobody needs to serve per sample (observers such as the trip monitor) can
-be created detached and emptied in batches by :meth:`HotPath.drain` from a periodic timer.
+be created detached and emptied in batches by :meth:`HotPath.drain`.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ from contextlib import ExitStack
 from typing import Any
 
 from rclpy.callback_groups import CallbackGroup
+from rclpy.context import Context
 from rclpy.guard_condition import GuardCondition
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
@@ -55,8 +63,26 @@ class DetachedGroup(CallbackGroup):
         return None
 
 
+#: Composed processes: context id -> the loop that serves every hot path of that context.
+_DRIVERS: dict[int, HotLoop] = {}
+
+
+def drive(context: Context, name: str = "driver") -> HotLoop:
+    """Make one :class:`HotLoop` serve the hot paths of every node created on ``context``
+    from now on (composed deployment); start it with :meth:`HotLoop.start` once the nodes
+    exist."""
+    loop = HotLoop(context, name)
+    _DRIVERS[id(context)] = loop
+    return loop
+
+
+def undrive(context: Context) -> None:
+    """Forget the driver of ``context`` (after its loop stopped)."""
+    _DRIVERS.pop(id(context), None)
+
+
 class HotPath:
-    """The per-sample subscriptions of ``node`` and the thread that serves them.
+    """The per-sample subscriptions of ``node`` (and an optional tick).
 
     Parameters
     ----------
@@ -73,24 +99,31 @@ class HotPath:
         self.lock = lock
         self.on = enabled()
         self._group = DetachedGroup()
-        self._subs: list[tuple[Subscription, Callable[[Any], None]]] = []
+        self.subs: list[tuple[Subscription, Callable[[Any], None]]] = []
         self._tick: Callable[[], float | None] | None = None
-        self._stop = False
-        self._thread: threading.Thread | None = None
-        self._guard: GuardCondition | None = None
-        self.error: BaseException | None = None
-        self.wakeups = 0
+        self.loop: HotLoop | None = None
+        self._own = False
         self.messages = 0
+
+    @property
+    def error(self) -> BaseException | None:
+        """The exception that ended the serving loop, if any."""
+        return self.loop.error if self.loop is not None else None
+
+    @property
+    def driven(self) -> bool:
+        """True when a composed process's driver loop serves this path."""
+        return self.loop is not None and not self._own
 
     def subscribe(self, msg_type: Any, topic: str, handler: Callable[[Any], None],
                   qos: QoSProfile, raw: bool = False) -> Subscription:
-        """A subscription served by the hot thread (or by the executor when the path is off);
+        """A subscription served by the hot loop (or by the executor when the path is off);
         ``raw``: the handler gets the serialized bytes (see :mod:`.wire`)."""
         if not self.on:
             return self.node.create_subscription(msg_type, topic, handler, qos, raw=raw)
         sub = self.node.create_subscription(msg_type, topic, handler, qos,
                                             callback_group=self._group, raw=raw)
-        self._subs.append((sub, handler))
+        self.subs.append((sub, handler))
         return sub
 
     def detached(self, msg_type: Any, topic: str, qos: QoSProfile,
@@ -118,18 +151,95 @@ class HotPath:
         self._tick = tick
 
     def start(self) -> None:
-        """Start the thread (no-op when off or without subscriptions and tick)."""
-        if not self.on or self._thread is not None or not (self._subs or self._tick):
+        """Serve the subscriptions: by this process's driver loop if the node's context is
+        driven (composed), else by a thread of its own (no-op when off, when already started,
+        or without subscriptions and tick)."""
+        if not self.on or self.loop is not None or not (self.subs or self._tick):
             return
-        self._guard = self.node.create_guard_condition(lambda: None,
-                                                       callback_group=self._group)
-        self.node.context.on_shutdown(self._on_shutdown)
-        self._thread = threading.Thread(target=self._run, name=f"hot-{self.node.get_name()}",
+        driver = _DRIVERS.get(id(self.node.context))
+        if driver is not None:
+            self.loop = driver
+            driver.add(self)
+            return
+        self.loop = HotLoop(self.node.context, f"hot-{self.node.get_name()}")
+        self._own = True
+        self.loop.add(self)
+        self.loop.start()
+
+    def wake(self) -> None:
+        """Make the loop run the ticks now (e.g. when stepping starts)."""
+        if self.loop is not None:
+            self.loop.wake()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """End this node's own loop and wait for it (idempotent; a driver loop is stopped by
+        its process)."""
+        if self.loop is not None and self._own:
+            self.loop.stop(timeout_s)
+
+    def serve(self) -> int:
+        """Take every queued message of the subscriptions and run the handlers under the
+        lock; returns how many."""
+        n = 0
+        with self.lock:
+            for sub, handler in self.subs:
+                h = sub.handle
+                typ, raw = sub.msg_type, sub.raw
+                while True:
+                    got = h.take_message(typ, raw)
+                    if got is None:
+                        break
+                    n += 1
+                    handler(got[0])
+        self.messages += n
+        return n
+
+    def tick(self) -> float | None:
+        """Run the tick under the lock (None without one)."""
+        if self._tick is None:
+            return None
+        with self.lock:
+            return self._tick()
+
+
+class HotLoop:
+    """One thread serving the hot paths added to it, in the order they were added.
+
+    After each wake-up it passes over every path's subscriptions until a pass takes nothing
+    (a handler's publication may be in another served subscription at once), then runs the
+    ticks; it waits on a wait set of all the subscriptions and a guard condition for at most
+    the shortest time a tick asked for.
+    """
+
+    def __init__(self, context: Context, name: str) -> None:
+        self.context = context
+        self.name = name
+        self.paths: list[HotPath] = []
+        self._stop = False
+        self._thread: threading.Thread | None = None
+        self._guard: GuardCondition | None = None
+        self.error: BaseException | None = None
+        self.rt_warning: str | None = None
+        self.wakeups = 0
+
+    def add(self, path: HotPath) -> None:
+        """Serve ``path`` too (before :meth:`start`)."""
+        if self._thread is not None:
+            raise RuntimeError(f"{self.name}: cannot add a hot path to a running loop")
+        self.paths.append(path)
+
+    def start(self, rt_priority: int = 0) -> None:
+        """Start the thread; ``rt_priority`` 1-99 puts it (only it) under SCHED_FIFO."""
+        if self._thread is not None or not self.paths:
+            return
+        self._guard = GuardCondition(None, None, context=self.context)
+        self.context.on_shutdown(self._on_shutdown)
+        self._thread = threading.Thread(target=self._run, args=(rt_priority,), name=self.name,
                                         daemon=True)
         self._thread.start()
 
     def wake(self) -> None:
-        """Make the thread run ``tick`` now (e.g. when stepping starts)."""
+        """Run the ticks now."""
         if self._guard is not None:
             self._guard.trigger()
 
@@ -138,9 +248,14 @@ class HotPath:
         self._stop = True
         if self._thread is not None:
             if self._guard is not None:
-                self._guard.trigger()
+                with contextlib.suppress(Exception):
+                    self._guard.trigger()
             self._thread.join(timeout_s)
             self._thread = None
+        if self._guard is not None:
+            with contextlib.suppress(Exception):
+                self._guard.destroy()
+            self._guard = None
 
     def _on_shutdown(self) -> None:
         self._stop = True
@@ -148,47 +263,52 @@ class HotPath:
             with contextlib.suppress(Exception):  # the context may be gone already
                 self._guard.trigger()
 
-    def _run(self) -> None:
+    def _run(self, rt_priority: int) -> None:
+        if rt_priority:
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt_priority))
+            except (OSError, AttributeError) as exc:
+                self.rt_warning = (f"SCHED_FIFO priority {rt_priority} refused ({exc}); "
+                                   f"default scheduler kept")
         try:
             self._loop()
-        except BaseException as exc:  # noqa: BLE001 - re-raised by runtime.spin_until_stopped
-            if not self._stop and self.node.context.ok():
+        except BaseException as exc:  # noqa: BLE001 - re-raised by the process's spin loop
+            if not self._stop and self.context.ok():
                 self.error = exc
-                self.node.get_logger().error(f"hot path failed:\n{traceback.format_exc()}")
+                self.paths[0].node.get_logger().error(
+                    f"{self.name} failed:\n{traceback.format_exc()}")
 
     def _loop(self) -> None:
         assert self._guard is not None
-        subs = [s for s, _ in self._subs]
-        ws = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self.node.context.handle)
+        subs = [s for p in self.paths for s, _ in p.subs]
+        ws = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self.context.handle)
+        first_node = self.paths[0].node
         with ExitStack() as stack:
             for s in subs:
                 stack.enter_context(s.handle)
             stack.enter_context(self._guard.handle)
             guard = self._guard.handle
-            table = [(s.handle, s.handle.pointer, s.msg_type, s.raw, h) for s, h in self._subs]
+            handles = [s.handle for s in subs]
             timeout = IDLE_S
             while not self._stop:
                 ws.clear_entities()
-                for h, *_ in table:
+                for h in handles:
                     ws.add_subscription(h)
                 ws.add_guard_condition(guard)
                 ws.wait(max(int(timeout * 1e9), 0))
                 self.wakeups += 1
                 if self._stop:
                     break
-                ready = ws.get_ready_entities("subscription")
-                if not ready and subs and subs[0] not in self.node.subscriptions:
+                if subs and not ws.get_ready_entities("subscription") and \
+                        subs[0] not in first_node.subscriptions:
                     break  # the node was destroyed without stop(): nothing left to serve
-                with self.lock:
-                    for h, ptr, typ, raw, handler in table:
-                        if ptr not in ready:
-                            continue
-                        while True:
-                            got = h.take_message(typ, raw)
-                            if got is None:
-                                break
-                            self.messages += 1
-                            handler(got[0])
-                    nxt = self._tick() if self._tick is not None else None
-                timeout = IDLE_S if nxt is None else min(max(nxt, 0.0), IDLE_S)
+                while sum(p.serve() for p in self.paths):
+                    pass  # until a pass over every subscription takes nothing
+                timeout = IDLE_S
+                for p in self.paths:
+                    nxt = p.tick()
+                    if nxt is not None:
+                        timeout = min(timeout, max(nxt, 0.0))
 
+
+__all__ = ["IDLE_S", "DetachedGroup", "HotLoop", "HotPath", "drive", "enabled", "undrive"]

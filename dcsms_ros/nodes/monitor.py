@@ -1,7 +1,12 @@
-"""The supervising side of ``dcsms up``: wait for the graph, show status, watch the processes.
+"""The supervising side of ``dcsms up``: wait for the graph, show status, drive a mode
+schedule, watch the processes.
 
-A small node in the ``up`` process subscribes to ``/dcsms/mode`` and ``/dcsms/diagnostics``
-only (1 Hz reports, not the 2 kHz streams) and checks the graph's connections.
+A small node in the ``up`` process subscribes to the graph's ``mode`` and to ``/diagnostics``
+(1 Hz reports, not the 2 kHz streams), checks the graph's connections and, given a mode
+schedule, switches through the real ``set_mode/<mode>`` services. In lockstep a switch lands on
+a defined sample: the plant holds before the sample of the next switch (``hold_at_s``), reports
+that it holds, the switch is made, and the hold moves on to the following switch, so the run is
+the batch engine's bit for bit. In real time the switch is made when ``/clock`` passes its time.
 """
 
 from __future__ import annotations
@@ -14,71 +19,151 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
+from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.modes import Mode, controller_ids
+from dcsms_ros.graph import GraphSpec
 from dcsms_ros.nodes import qos
 
 #: Seconds between status lines on a terminal, and when the output is a file or a pipe.
 STATUS_PERIOD_TTY = 0.5
 STATUS_PERIOD_PIPE = 5.0
+PLANT = "plant_simulator"
 
 
 class GraphMonitor:
-    """Connection check and status line of a running graph with ``n`` stages."""
+    """Connection check, status line and mode schedule of a running graph.
 
-    def __init__(self, n: int) -> None:
-        self.n = n
+    Parameters
+    ----------
+    spec : GraphSpec
+        The graph (namespace, schedule, stages).
+    events : sequence of (time_s, Mode)
+        Mode switches at simulated times, sorted.
+    rate_hz : float
+        Sample rate (lockstep switches land on sample ``round(t * rate)``).
+    """
+
+    def __init__(self, spec: GraphSpec, events: Sequence[tuple[float, Mode]] = (),
+                 rate_hz: float = 2000.0) -> None:
+        self.spec = spec
+        self.n = spec.num_stages
+        self.names = spec.names
         self.ctx = Context()
         rclpy.init(args=[], context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
         self.node = Node(f"dcsms_up_{os.getpid()}", context=self.ctx)
         self.mode: str | None = None
         self.diag: dict[str, dict[str, str]] = {}
         self.messages: dict[str, str] = {}
-        self.node.create_subscription(String, topics.MODE, self._on_mode, qos.latched())
-        self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diag,
-                                      qos.status())
-        self.set_mode = self.node.create_client(Trigger,
-                                                topics.set_mode_service(Mode.PASSIVE.value))
+        self.sim_time = -1.0
+        nd = self.node
+        nd.create_subscription(String, self.names.mode, self._on_mode, qos.latched())
+        nd.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diag,
+                               qos.status())
+        self.set_mode = {m: nd.create_client(Trigger, self.names.set_mode(m.value))
+                         for m in Mode}
+        self.events = list(events)
+        self.lockstep = spec.schedule == "lockstep"
+        self.rate = rate_hz
+        self.switches: list[tuple[float, str, bool, str]] = []  # (t, mode, success, message)
+        self._next = 0
+        self._pending: Any = None
+        self._releasing: Any = None
+        if self.events:
+            self.set_params = nd.create_client(SetParameters, self.names.set_parameters(PLANT))
+            if not self.lockstep:
+                nd.create_subscription(Clock, topics.CLOCK, self._on_clock,
+                                       qos_profile_sensor_data)
         self.executor = SingleThreadedExecutor(context=self.ctx)
-        self.executor.add_node(self.node)
+        self.executor.add_node(nd)
         self.tty = sys.stdout.isatty()
 
     def _on_mode(self, msg: String) -> None:
         self.mode = msg.data
 
+    def _on_clock(self, msg: Clock) -> None:
+        self.sim_time = msg.clock.sec + msg.clock.nanosec * 1e-9
+
     def _on_diag(self, msg: DiagnosticArray) -> None:
         for st in msg.status:
-            self.diag[st.name] = {kv.key: kv.value for kv in st.values}
-            self.messages[st.name] = st.message
+            name = self.names.local_status(st.name)
+            if name is None:
+                continue  # another graph on the same network
+            self.diag[name] = {kv.key: kv.value for kv in st.values}
+            self.messages[name] = st.message
 
     def missing(self) -> list[str]:
         """What is not connected yet (empty when the graph is up)."""
-        node = self.node
-        out = [c for c in controller_ids(self.n)
-               if node.count_publishers(topics.force_topic(c)) == 0]
-        if node.count_subscribers(topics.SENSORS_RAW) == 0:
+        node, nm = self.node, self.names
+        out = [c for c in controller_ids(self.n) if node.count_publishers(nm.force(c)) == 0]
+        if node.count_subscribers(nm.sensors_raw) == 0:
             out.append("sensor_decoupling")
-        if node.count_publishers(topics.SENSORS_RAW) == 0:
-            out.append("plant_simulator")
-        if self.mode is None or not self.set_mode.service_is_ready():
+        if node.count_publishers(nm.sensors_raw) == 0:
+            out.append(PLANT)
+        if self.mode is None or not self.set_mode[Mode.PASSIVE].service_is_ready():
             out.append("mode_switch")
         return out
 
+    # -- schedule ----------------------------------------------------------------------------
+    def _sample(self, i: int) -> int:
+        return int(round(self.events[i][0] * self.rate))
+
+    def drive(self) -> None:
+        """Make the next scheduled switch when it is due (call often)."""
+        if self._releasing is not None:
+            if not self._releasing.done():
+                return
+            self._releasing = None
+        if self._pending is not None:
+            if not self._pending.done():
+                return
+            res = self._pending.result()
+            t, m = self.events[self._next]
+            ok, text = (res.success, res.message) if res is not None else (False, "no answer")
+            self.switches.append((t, m.label, ok, text))
+            if not ok:
+                print(f"dcsms up: switch to {m.label} at t={t:g} s refused: {text}",
+                      file=sys.stderr, flush=True)
+            self._pending = None
+            self._next += 1
+            if self.lockstep and (self._next == len(self.events)
+                                  or self._sample(self._next) != self._sample(self._next - 1)):
+                # move the plant's hold to the next switch (0: none) and let it go on
+                hold = self.events[self._next][0] if self._next < len(self.events) else 0.0
+                req = SetParameters.Request(parameters=[
+                    Parameter("hold_at_s", value=float(hold)).to_parameter_msg()])
+                self._releasing = self.set_params.call_async(req)
+            return
+        if self._next >= len(self.events):
+            return
+        t, m = self.events[self._next]
+        if self.lockstep:
+            p = self.diag.get(PLANT, {})
+            due = p.get("held") == "True" and p.get("hold_sample") == str(self._sample(self._next))
+        else:
+            due = self.sim_time >= t
+        if due and self.set_mode[m].service_is_ready():
+            self._pending = self.set_mode[m].call_async(Trigger.Request())
+
+    # -- status ------------------------------------------------------------------------------
     def status_line(self) -> str:
         """``t=… s  rate=… Hz  mode=…  faults=…``."""
-        p = self.diag.get("plant_simulator", {})
+        p = self.diag.get(PLANT, {})
         ms = self.diag.get("mode_switch", {})
         faults = sum(int(p.get(k, "0")) for k in ("lockstep_timeouts", "stale_events",
                                                    "nonfinite_inputs", "overruns"))
         trip = "  TRIPPED" if ms.get("tripped") == "True" else ""
-        degraded = self.messages.get("plant_simulator", "")
+        degraded = self.messages.get(PLANT, "")
         extra = f"  [{degraded}]" if degraded.startswith("degraded") else ""
         return (f"t={float(p.get('sim_time_s', 0.0)):9.3f} s  "
                 f"rate={float(p.get('achieved_rate_hz', 0.0)):7.1f} Hz  "
@@ -87,32 +172,34 @@ class GraphMonitor:
 
     def supervise(self, kids: Sequence[Any], stop: Callable[[], bool], connect_timeout: float,
                   expect_finish: bool) -> int:
-        """Wait for the graph, then print status until ``stop()`` or the plant finishes.
+        """Wait for the graph, then drive the schedule and print status until ``stop()`` or
+        the plant finishes.
 
-        Returns 0 after a stop request or a finished run, 1 if a node died or the graph did not
-        connect within ``connect_timeout`` seconds.
+        Returns 0 after a stop request or a finished run, 1 if a process died or the graph
+        did not connect within ``connect_timeout`` seconds.
         """
         t0 = time.monotonic()
         connected = False
         last = 0.0
         period = STATUS_PERIOD_TTY if self.tty else STATUS_PERIOD_PIPE
+        plant_proc = {PLANT, "graph"}  # the plant's process: its own, or the composed one
         while not stop():
-            self.executor.spin_once(timeout_sec=0.1)
+            self.executor.spin_once(timeout_sec=0.01 if self.events else 0.1)
             for kid in kids:
                 code = kid.proc.poll() if kid.proc is not None else None
                 if code is None:
                     continue
-                if kid.name == "plant_simulator" and code == 0 and expect_finish:
+                if kid.name in plant_proc and code == 0 and expect_finish:
                     for _ in range(20):  # its last report may still be in flight
-                        if self.diag.get("plant_simulator", {}).get("finished") == "True":
+                        if self.diag.get(PLANT, {}).get("finished") == "True":
                             break
                         self.executor.spin_once(timeout_sec=0.05)
-                    if self.diag.get("plant_simulator", {}).get("finished") == "True":
+                    if self.diag.get(PLANT, {}).get("finished") == "True":
                         self._print(self.status_line(), final=True)
                         print("dcsms up: run finished", flush=True)
                         return 0
                 self._print("", final=True)
-                print(f"dcsms up: error: node {kid.name} exited with status {code}"
+                print(f"dcsms up: error: {kid.name} exited with status {code}"
                       + (f"; last log lines ({kid.log}):\n{_tail(kid.log)}" if kid.log else ""),
                       file=sys.stderr, flush=True)
                 return 1
@@ -127,6 +214,8 @@ class GraphMonitor:
                           f"missing: {', '.join(missing)}", file=sys.stderr, flush=True)
                     return 1
                 continue
+            if self.events:
+                self.drive()
             if now - last >= period:
                 last = now
                 self._print(self.status_line())

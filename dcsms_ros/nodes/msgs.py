@@ -14,7 +14,10 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from numpy.typing import NDArray
+from rclpy.node import Node
 from sensor_msgs.msg import JointState
+
+from dcsms_ros.core.topics import status_name
 
 Array = NDArray[np.float64]
 NS = 1_000_000_000
@@ -96,3 +99,10 @@ def status(name: str, level: bytes, message: str, values: dict[str, object],
     """A DiagnosticStatus with ``values`` as key/value strings."""
     return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id,
                             values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+
+
+def node_status(node: Node, level: bytes, message: str, values: dict[str, object],
+                sub: str = "") -> DiagnosticStatus:
+    """:func:`status` named after ``node``'s full name (``dcsms/plant_simulator``, and
+    ``dcsms/plant_simulator/<sub>`` for a part), as /diagnostics tools group them."""
+    return status(status_name(node.get_fully_qualified_name(), sub), level, message, values)

@@ -39,6 +39,7 @@ from rclpy.parameter import Parameter
 from dcsms_ros.core.config import SystemConfig, config_from_flat
 from dcsms_ros.core.schema import GLOBAL_SPECS, ParamSpec, expand_specs
 from dcsms_ros.errors import ConfigError
+from dcsms_ros.protocols import gate
 
 #: Prefixes of run-time tunable names; everything else is fixed once a node runs.
 MUTABLE_PREFIXES = ("feedback.", "feedforward.", "control.")
@@ -183,7 +184,9 @@ class NodeConfig:
             if value is not None:
                 self.flat[name] = value
         self.cfg = config_from_flat(self.flat, self.source)
-        self._pending: SystemConfig | None = None
+        #: Optional extra on-set check of the changed values: the reason to reject, or None
+        #: (the stability guard, :mod:`.stability`).
+        self.vet: Callable[[dict[str, Any]], str | None] | None = None
         node.add_on_set_parameters_callback(self._validate)
         node.add_post_set_parameters_callback(self._applied)
 
@@ -202,8 +205,10 @@ class NodeConfig:
             return SetParametersResult(successful=True)
         try:
             config_from_flat(flat, self.source)
+            reason = self.vet({n: flat[n] for n in changed}) if self.vet is not None else None
         except ConfigError as exc:
             reason = str(exc)
+        if reason is not None:
             self.node.get_logger().warning(f"parameter change rejected: {reason}")
             return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
@@ -269,28 +274,33 @@ def declare_observed(node: Node) -> list[str]:
 GRAPH_NODES = ("plant_simulator", "sensor_decoupling", "mode_switch", "excitation")
 
 
+def in_graph(node_name: str) -> bool:
+    """True for a node of the graph itself (a subscriber from any other node is an observer)."""
+    return node_name in GRAPH_NODES or node_name.startswith(("fb_stage", "ff_stage"))
+
+
+def outside_graph(node: Node, topic: str) -> bool:
+    """True if ``topic`` has a subscriber that is not a node of the graph (an observer)."""
+    return any(not in_graph(i.node_name) for i in node.get_subscriptions_info_by_topic(topic))
+
+
 class FirstSampleGate:
-    """Lockstep: hold a node's first answer until every reader of its publishers is matched,
-    at most ``timeout_s`` (an incompatible reader must not stall the graph). Open from the
-    start in real time."""
+    """Lockstep: hold a node's first answer until every reader of its publishers is matched
+    (:class:`dcsms_ros.protocols.gate.FirstSampleGate` on this node's graph view)."""
 
     def __init__(self, node: Node, lockstep: bool, timeout_s: float = 5.0) -> None:
         self._node = node
-        self._timeout_s = timeout_s
-        self._t0: float | None = None
-        self.open = not lockstep
+        self._gate = gate.FirstSampleGate(lockstep, timeout_s)
 
     def ready(self, pubs: list, observed: list[str]) -> bool:
         """True once the first sample may go out (then always)."""
-        if self.open:
+        if self._gate.open:
             return True
-        if self._t0 is None:
-            self._t0 = time.monotonic()
-        self.open = publishers_matched(self._node, pubs, observed)
-        if not self.open and time.monotonic() - self._t0 > self._timeout_s:
+        ok = self._gate.ready(lambda: publishers_matched(self._node, pubs, observed),
+                              time.monotonic())
+        if ok and self._gate.timed_out:
             self._node.get_logger().warning("not every reader matched; answering anyway")
-            self.open = True
-        return self.open
+        return ok
 
 
 def publishers_matched(node: Node, pubs: list, observed: list[str]) -> bool:
@@ -304,9 +314,6 @@ def publishers_matched(node: Node, pubs: list, observed: list[str]) -> bool:
         topic = pub.topic_name
         if pub.get_subscription_count() < node.count_subscribers(topic):
             return False
-        if topic in observed:
-            infos = node.get_subscriptions_info_by_topic(topic)
-            if not any(i.node_name not in GRAPH_NODES and not i.node_name.startswith(
-                    ("fb_stage", "ff_stage")) for i in infos):
-                return False
+        if topic in observed and not outside_graph(node, topic):
+            return False
     return True

@@ -27,7 +27,9 @@ class PlantOptions:
     timing_file: str
     status_period_s: float
     ground_from: str
-    excitation: bool = False
+    trip_gate: bool
+    hold_at_s: float
+    excitation: bool
 
 
 def declare_plant_options(node: Node, num_stages: int) -> PlantOptions:
@@ -58,7 +60,7 @@ def declare_plant_options(node: Node, num_stages: int) -> PlantOptions:
         handshake_timeout_s=declare_local(node, "handshake_timeout_s", 10.0, "Longest wait for "
                                           "the graph before sample 0 [s]", lo=0.0, hi=600.0),
         publish_truth=declare_local(node, "publish_truth", True, "Publish the true velocities "
-                                    "on /dcsms/truth/<body>"),
+                                    "on <namespace>/truth/<body>"),
         clock_rate_hz=declare_local(node, "clock_rate_hz", 100.0, "Rate of /clock (every "
                                     "node's sim time, used only by timers, logs and the "
                                     "real-time watchdog; stamps carry the sample time): each "
@@ -72,10 +74,18 @@ def declare_plant_options(node: Node, num_stages: int) -> PlantOptions:
         ground_from=declare_local(node, "ground_from", "", "Replay the ground velocity of this "
                                   "bag (BAG or BAG:TOPIC, resampled to plant.rate_hz) instead of "
                                   "white noise; empty: white noise"),
+        trip_gate=declare_local(node, "trip_gate", False, "Lockstep: at every trip checkpoint "
+                                "ask mode_switch (trip/check) and wait for its verdict "
+                                "(trip/checked), so the trip lands on the batch engine's "
+                                "sample; false: no wait"),
+        hold_at_s=declare_local(node, "hold_at_s", 0.0, "Lockstep: stop before the sample at "
+                                "this simulated time until the value changes (a scheduled mode "
+                                "switch happens meanwhile); 0: no hold [s]", read_only=False,
+                                lo=0.0, hi=1e9),
         excitation=declare_local(node, "excitation", False, "Sum the excitation wrench of "
-                                 "/dcsms/force/excitation (frame_id: the stage) with the "
-                                 "controllers' before allocation; in lockstep wait for it like "
-                                 "for a controller"),
+                                 "force/excitation (frame_id: the stage) with the controllers' "
+                                 "before allocation; in lockstep wait for it like for a "
+                                 "controller"),
     )
 
 

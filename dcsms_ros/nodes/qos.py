@@ -11,9 +11,9 @@ same stream. What differs between the two schedules is the readers of the contro
   loopback nothing is lost in practice, and each hop saves the reliable protocol's heartbeat
   and acknack exchange, which costs about as much CPU as the sample itself (measured: rclpy
   ping-pong 4,900 vs 3,200 round trips/s, ~half the CPU per round trip; README
-  "Performance"). The writers stay reliable and keep :data:`LOCKSTEP_DEPTH` samples so a slower
-  reliable observer (recorder, test probe) can fall behind by that many without losing one,
-  while the loop never waits for it (keep-last writers never block).
+  "Performance"). The writers stay reliable and keep :data:`LOCKSTEP_WRITER_DEPTH` samples so
+  a slower reliable observer (recorder, test probe) can fall behind by that many without losing
+  one, while the loop never waits for it (keep-last writers never block).
 * **real time** - the newest sample is the only useful one; a backlog would add latency to
   every later sample. Control-path readers are best-effort keep-last 1 (the ROS
   ``sensor_data`` profile): a late callback processes the freshest sample and the skipped ones
@@ -27,8 +27,16 @@ from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-#: Writer/reader history of lockstep streams: samples a slow observer may lag behind.
+from dcsms_ros.nodes import deploy
+
+#: Reader history of lockstep loop streams.
 LOCKSTEP_DEPTH = 1000
+#: Writer history of lockstep streams: how far a reliable observer (recorder, probe) may lag
+#: behind, and the window in which a sample it lost (a full shared-memory queue while its
+#: process was starved) can still be repaired, which takes a heartbeat period (~3 s in Fast
+#: DDS): 25,000 samples are 5 s at the composed graph's 5 kHz. Measured: with 1,000, a
+#: recorder on a loaded machine lost bursts of samples of a composed run.
+LOCKSTEP_WRITER_DEPTH = deploy.LOCKSTEP_WRITER_DEPTH
 #: Writer history of real-time streams for reliable observers: 4 s at 2 kHz, so a recorder
 #: starved of CPU for seconds on a loaded machine loses nothing (the reliability soak measured
 #: 100 samples = 50 ms losing ~7 % and 2000 losing ~2 %). Keep-last writers never block, and the
@@ -43,12 +51,16 @@ def latched() -> QoSProfile:
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def stream_pub(lockstep: bool) -> QoSProfile:
-    """Writer of a per-sample stream (sensors, velocities, forces, applied, truth)."""
-    return QoSProfile(depth=LOCKSTEP_DEPTH if lockstep else REALTIME_DEPTH,
+def stream_pub(lockstep: bool, durable: bool = False) -> QoSProfile:
+    """Writer of a per-sample stream (sensors, velocities, forces, applied, truth).
+
+    ``durable`` (lockstep only): transient local, so a reader that matched late still gets the
+    history from sample 0 (the trip checker of mode_switch must see every sample)."""
+    return QoSProfile(depth=LOCKSTEP_WRITER_DEPTH if lockstep else REALTIME_DEPTH,
                       history=HistoryPolicy.KEEP_LAST,
                       reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if lockstep and durable
+                      else DurabilityPolicy.VOLATILE)
 
 
 def stream_sub(lockstep: bool) -> QoSProfile:

@@ -53,8 +53,9 @@ NODE_NAME = "dcsms_recorder"
 DEFAULT_TOPICS = ("/dcsms/*",)
 #: Drain ends once no message arrived for this long (s) ...
 QUIET_S = 0.1
-#: ... or after this long (s) at most, for a publisher that keeps publishing.
-DRAIN_MAX_S = 2.0
+#: ... or after this long (s) at most: a backlog (a fast lockstep run recorded on a loaded
+#: machine) is written to its end while messages keep coming out of the queues.
+DRAIN_MAX_S = 30.0
 #: Reader history per topic: 2 s at 2 kHz of CPU starvation absorbed without a drop (~0.2 MB
 #: per topic of TwistStamped).
 DEFAULT_DEPTH = 4000

@@ -33,6 +33,7 @@ from rclpy.executors import (
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from dcsms_ros import graph
 from dcsms_ros.errors import DcsmsError
 
 #: Exit status of a configuration error (the CLI's convention).
@@ -41,9 +42,9 @@ EXIT_CONFIG = 2
 POLL_S = 0.1
 
 
-#: Environment variable: SCHED_FIFO priority (1-99) for every thread of a node process; unset
-#: or 0 keeps the default scheduler. ``dcsms up --rt-priority N`` sets it for the control path.
-RT_PRIORITY_ENV = "DCSMS_RT_PRIORITY"
+#: SCHED_FIFO priority (1-99) for every thread of a node process; unset or 0 keeps the default
+#: scheduler. ``dcsms up --rt-priority N`` sets it for the control path.
+RT_PRIORITY_ENV = graph.RT_PRIORITY_ENV
 
 
 def apply_rt_priority() -> str | None:
@@ -84,6 +85,9 @@ class Stoppable:
 
 #: Longest total wait (s) of a node's close() for its reliable readers' acknowledgements.
 ACK_WAIT_S = 3.0
+#: The same after a run that finished by itself (the plant's duration): a recorder on a loaded
+#: machine may trail a fast (composed) lockstep run by seconds, and nothing may be lost.
+ACK_WAIT_FINISHED_S = 30.0
 
 
 def wait_acked(pubs: Sequence[Any], total_s: float = ACK_WAIT_S) -> None:
@@ -121,6 +125,20 @@ def quiesce(executor: Executor, node: Node, timeout_s: float = 2.0) -> None:
     if tracker is not None:
         tracker.wait(timeout_s)
     time.sleep(0.05)  # the trailing guard-condition trigger of the last callback
+
+
+def config_error(exc: DcsmsError) -> int:
+    """Print a configuration error as one line; returns :data:`EXIT_CONFIG`."""
+    print(f"dcsms: error: {exc}", file=sys.stderr, flush=True)
+    return EXIT_CONFIG
+
+
+def close_node(node: Node) -> None:
+    """The node's own ``close()`` (final reports, acknowledgements), then destroy it."""
+    close = getattr(node, "close", None)
+    if close is not None:
+        close()
+    node.destroy_node()
 
 
 def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
@@ -169,18 +187,14 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
                 quiesce(executor, node)
             executor.shutdown(timeout_sec=2.0)
     except DcsmsError as exc:
-        print(f"dcsms: error: {exc}", file=sys.stderr, flush=True)
-        status = EXIT_CONFIG
+        status = config_error(exc)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         if node is not None:
             if getattr(node, "hot", None) is not None:
                 node.hot.stop()  # the hot thread ends before the node's entities go
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
-            node.destroy_node()
+            close_node(node)
         rclpy.try_shutdown(context=ctx)
     return status
 

@@ -5,9 +5,9 @@ Subscribes to ``/dcsms/sensors/raw`` (``sensor_msgs/JointState``, ``velocity`` m
 ``/dcsms/velocity/<body>`` (``geometry_msgs/TwistStamped``, frame_id = body) with the sample's
 stamp; both sides as serialized CDR (:mod:`.wire`). A repeated stamp (lockstep
 retransmission) is answered from the cache without stepping the filters again; an older stamp
-is ignored. Channels are matched by name, so a publisher may send
-them in any order; a missing channel reads NaN, which the core turns into a zero twist for that
-body (counted).
+is ignored (:class:`~dcsms_ros.protocols.responder.StampResponder`). Channels are matched by
+name, so a publisher may send them in any order; a missing channel reads NaN, which the core
+turns into a zero twist for that body (counted).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import status, to_stamp
+from dcsms_ros.nodes.msgs import node_status, to_stamp
 from dcsms_ros.nodes.params import (
     SELECTORS,
     FirstSampleGate,
@@ -36,6 +36,7 @@ from dcsms_ros.nodes.params import (
 )
 from dcsms_ros.nodes.runtime import main_for, wait_acked
 from dcsms_ros.nodes.wire import StampedWriter, names_blob, names_of, read_joint_state
+from dcsms_ros.protocols.responder import StampResponder, Verdict
 
 #: Longest hold of the first lockstep answer while readers match, s.
 MATCH_TIMEOUT_S = 5.0
@@ -44,9 +45,9 @@ MATCH_TIMEOUT_S = 5.0
 class SensorDecouplingNode(Node):
     """ROS adapter around :class:`~dcsms_ros.core.decoupling.Decoupler`."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, node_name: str = "sensor_decoupling", **kwargs) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)
-        super().__init__("sensor_decoupling", **kwargs)
+        super().__init__(node_name, **kwargs)
         self.params = NodeConfig(self, SELECTORS["sensor_decoupling"])
         cfg = self.params.cfg
         lockstep = declare_schedule(self) == "lockstep"
@@ -61,17 +62,16 @@ class SensorDecouplingNode(Node):
         self._blob = names_blob(self.names)
         self._index: dict[tuple[str, ...], np.ndarray] = {}
         self.writers = [StampedWriter(TwistStamped, b, self.dof) for b in self.bodies]
-        self.pubs = [self.create_publisher(TwistStamped, topics.velocity_topic(b),
-                                           qos.stream_pub(lockstep)) for b in self.bodies]
+        # lockstep: transient local, so mode_switch's trip checker gets every sample from 0
+        self.pubs = [self.create_publisher(TwistStamped, topics.LOCAL.velocity(b),
+                                           qos.stream_pub(lockstep, durable=True))
+                     for b in self.bodies]
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         self.hot = HotPath(self, threading.Lock())  # _on_raw runs on the hot thread
-        self.hot.subscribe(JointState, topics.SENSORS_RAW, self._on_raw, qos.stream_sub(lockstep),
-                           raw=True)
-        self.last_ns = -1
-        self._cache: list[bytes] = []
+        self.hot.subscribe(JointState, topics.LOCAL.sensors_raw, self._on_raw,
+                           qos.stream_sub(lockstep), raw=True)
+        self.answers: StampResponder[list[bytes]] = StampResponder()
         self.samples = 0
-        self.repeats = 0
-        self.out_of_order = 0
         self.bad_messages = 0
         self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.hot.start()
@@ -103,21 +103,15 @@ class SensorDecouplingNode(Node):
         ns, names, v = read_joint_state(buf)
         # implausible channels are counted on arrival and read NaN (that body's twist is zero)
         raw = self.guard.clean_each(self._channels(names, v), np.nan)
-        if ns == self.last_ns:
-            self.repeats += 1
-            for pub, m in zip(self.pubs, self._cache, strict=True):
-                pub.publish(m)
+        verdict = self.answers.judge(ns)
+        if verdict is Verdict.OLD or (verdict is Verdict.NEW and not self._gate.ready(
+                self.pubs, self.observed)):
             return
-        if ns < self.last_ns:
-            self.out_of_order += 1
-            return
-        if not self._gate.ready(self.pubs, self.observed):
-            return
-        tw = self.dec.step(raw)
-        self.last_ns = ns
-        self.samples += 1
-        self._cache = [w.encode(ns, tw[i]) for i, w in enumerate(self.writers)]
-        for pub, m in zip(self.pubs, self._cache, strict=True):
+        if verdict is Verdict.NEW:
+            tw = self.dec.step(raw)
+            self.samples += 1
+            self.answers.store(ns, [w.encode(ns, tw[i]) for i, w in enumerate(self.writers)])
+        for pub, m in zip(self.pubs, self.answers.cache or [], strict=True):
             pub.publish(m)
         if self.dec.nonfinite:
             self.get_logger().warning(f"non-finite sensor channels: {self.dec.nonfinite} "
@@ -127,9 +121,10 @@ class SensorDecouplingNode(Node):
         level = DiagnosticStatus.WARN if self.dec.nonfinite or self.bad_messages else \
             DiagnosticStatus.OK
         arr = DiagnosticArray()
-        arr.header.stamp = to_stamp(max(self.last_ns, 0))
-        arr.status = [status("sensor_decoupling", level, "running", {
-            "samples": self.samples, "repeats": self.repeats, "out_of_order": self.out_of_order,
+        arr.header.stamp = to_stamp(max(self.answers.last_ns, 0))
+        arr.status = [node_status(self, level, "running", {
+            "samples": self.samples, "repeats": self.answers.repeats,
+            "out_of_order": self.answers.out_of_order,
             "nonfinite": self.dec.nonfinite, "bad_messages": self.bad_messages,
             "rejected_inputs": self.guard.rejected})]
         self.pub_diag.publish(arr)

@@ -23,6 +23,7 @@ from geometry_msgs.msg import TwistStamped, WrenchStamped
 from numpy.typing import NDArray
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 
 from dcsms_ros.analysis import cdr
 from dcsms_ros.nodes.msgs import NS, stamp_ns
@@ -166,6 +167,23 @@ def _parse_joint_state(buf: bytes) -> tuple[int, bytes, Array]:
                 velocity = np.frombuffer(buf, "<f8", n, pos).astype(np.float64)
             pos += 8 * n
     return sec * NS + nsec, blob, velocity
+
+
+def header_bytes(ns: int, frame: str = "") -> bytes:
+    """CDR bytes of a std_msgs/Header stamped ``ns`` (int ns) with ``frame``."""
+    raw = frame.encode() + b"\x00"
+    return _LE + b"\x00\x00" + _STAMP.pack(ns // NS, ns % NS) + _U32.pack(len(raw)) + raw
+
+
+def read_header(buf: bytes) -> tuple[int, str]:
+    """(stamp ns, frame_id) of a serialized std_msgs/Header."""
+    if buf[:2] == _LE and len(buf) >= 16:
+        n = _U32.unpack_from(buf, 12)[0]
+        if n >= 1 and len(buf) >= 16 + n:
+            sec, nsec = _STAMP.unpack_from(buf, 4)
+            return sec * NS + nsec, buf[16:15 + n].decode(errors="replace")
+    m = deserialize_message(buf, Header)
+    return stamp_ns(m.stamp), str(m.frame_id)
 
 
 def names_of(blob: bytes) -> list[str]:

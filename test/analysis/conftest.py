@@ -5,13 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from true_plant import TRUE_PLANT
 
 from dcsms_ros.cli import main
-
-#: The plant of ``excited_bag``: the Table 1 preset with m1 +10 %, k2 -15 % and c1 +50 %
-#: (``--plant-set``); the bag records the preset, as a rig records what it was set up with.
-TRUE_PLANT = {"m1": 1087.68, "m2": 748.8, "k1": 1.2e6, "k2": 1.02e6, "c1": 2940.0,
-              "c2": 1960.0}
 
 
 @pytest.fixture(scope="session")

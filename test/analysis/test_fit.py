@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import TRUE_PLANT
+from true_plant import TRUE_PLANT
 
 from dcsms_ros.analysis import identify
 from dcsms_ros.analysis.export import write_result_bag

@@ -140,10 +140,11 @@ def _welch_expected(model_psd, f: np.ndarray, fs: float, nperseg: int) -> np.nda
 def test_predicted_psd_matches_batch_welch(preset, mode):
     """The PSD of each stage velocity predicted from the configured ground, table-force and
     sensor-noise spectra matches the batch engine's Welch PSD within 1 dB over 1-100 Hz,
-    smoothed over 5 bins (random error ~0.15 dB there), and the predicted RMS of every
-    actuator force (and, in 1dof, of every stage velocity) is within 5 % of the simulated one.
-    The TEM's stage velocities are left out of the RMS check: their variance sits in rocking
-    modes 0.03 Hz wide, so 200 s hold only a few independent samples of it (~10 % scatter)."""
+    smoothed over 5 bins (random error ~0.15 dB there), and the predicted RMS of every stage
+    velocity and actuator force matches the simulated one within 3 standard errors (estimated
+    from 10 batch means: the TEM's variance sits partly in modes 0.03 Hz wide and, for the
+    forces, in the boosted low-frequency sensor noise, so 200 s hold few independent samples of
+    it) plus 2 %."""
     cfg = load_config(ROOT / "config" / preset)
     fs = cfg.plant.rate_hz
     duration = 600.0 if cfg.plant.dof == 1 else 200.0
@@ -165,12 +166,14 @@ def test_predicted_psd_matches_batch_welch(preset, mode):
                                / np.convolve(p_mod[:, i], smooth, "valid"))
         assert np.max(np.abs(err_db)) < 1.0, (i, float(np.max(np.abs(err_db))))
     want = rms(model)
-    checks = [("force", res.applied[skip:].std(axis=0))]
-    if dof == 1:
-        checks.append(("stage", res.truth[skip:, 1:].reshape(-1, n * dof).std(axis=0)))
-    for name, got in checks:
+    for name, x in (("force", res.applied[skip:]),
+                    ("stage", res.truth[skip:, 1:].reshape(-1, n * dof))):
         w = want[model.outputs[name]]
+        got = x.std(axis=0)
+        # standard error of the RMS from the scatter of 10 batch means of the variance
+        var = np.array([c.var(axis=0) for c in np.array_split(x, 10)])
+        err = var.std(axis=0, ddof=1) / np.sqrt(10) / (2 * np.maximum(got, 1e-300))
         # channels the disturbances barely reach (rounding-level RMS) are only checked as such
         big = w > 1e-3 * np.max(w)
-        assert_allclose(got[big], w[big], rtol=0.05, err_msg=name)
+        assert np.all(np.abs(got - w)[big] <= 3 * err[big] + 0.02 * w[big]), (name, got, w, err)
         assert np.all(got[~big] <= 2e-3 * np.max(w)), name

@@ -44,13 +44,13 @@ def test_feedback_node_steps_once_per_stamp_and_guards_nan(ctx, cfg):
     for m in got:
         assert stamp_ns(m.header.stamp) == 500_000 and m.header.frame_id == "stage1"
         np.testing.assert_array_equal(wrench_array(m, 1), expected)
-    assert (fb.samples, fb.repeats) == (1, 1)
+    assert (fb.samples, fb.answers.repeats) == (1, 1)
     pub.publish(twist_msg(np.array([np.nan]), 1_000_000, "stage1"))
     assert spin_until(ex, lambda: len(got) == 3, 10.0)
     assert wrench_array(got[2], 1)[0] == 0.0 and fb.loop.nonfinite == 1
     pub.publish(twist_msg(v, 250_000, "stage1"))  # older than the last: ignored
     spin_until(ex, lambda: False, 0.3)
-    assert len(got) == 3 and fb.out_of_order == 1
+    assert len(got) == 3 and fb.answers.out_of_order == 1
     ex.shutdown()
 
 

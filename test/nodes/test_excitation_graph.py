@@ -101,8 +101,10 @@ def test_realtime_excitation_service_sum_and_trip(ctx, tmp_path: Path) -> None:
     state: dict[str, dict[str, str]] = {}
 
     def on_diag(msg: DiagnosticArray) -> None:
-        for st in msg.status:
-            state[st.name] = {kv.key: kv.value for kv in st.values}
+        for st in msg.status:  # status names carry the namespace (dcsms/mode_switch)
+            name = topics.DEFAULT.local_status(st.name)
+            if name is not None:
+                state[name] = {kv.key: kv.value for kv in st.values}
 
     probe.create_subscription(WrenchStamped, topics.EXCITATION,
                               lambda m: exc.append(m.wrench.force.z), qos.stream_sub(False))

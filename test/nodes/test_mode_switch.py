@@ -117,7 +117,7 @@ def test_restarted_controller_is_given_the_current_mode(ctx, cfg):
     g = Graph(ctx, cfg)
     try:
         assert g.call(topics.set_mode_service("dfbc")).success
-        assert g.wait(lambda: "fb_stage1" in g.ms._boots and g.ms._ready["fb_stage1"])
+        assert g.wait(lambda: "fb_stage1" in g.ms.ctl.boots and g.ms.ctl.ready["fb_stage1"])
         time.sleep(0.6)  # the reconcile that saw the services appear has told them already
         # the restarted process came up disabled (its command line said Passive), and the
         # service never looked gone, so the 0.5 s reconcile has nothing to notice
@@ -125,7 +125,8 @@ def test_restarted_controller_is_given_the_current_mode(ctx, cfg):
         time.sleep(1.2)
         assert not g.fb[0].loop.enabled
         pub = g.client.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
-        report = DiagnosticArray(status=[status("fb_stage1", DiagnosticStatus.OK, "disabled",
+        report = DiagnosticArray(status=[status(topics.DEFAULT.status("fb_stage1"),
+                                                DiagnosticStatus.OK, "disabled",
                                                 {"boot_ns": 1})])
         assert g.wait(lambda: pub.get_subscription_count() > 0)
         pub.publish(report)

@@ -24,7 +24,7 @@ def test_realtime_graph_switches_mode_and_stops_cleanly(ctx, tmp_path):
 
     def on_diag(msg: DiagnosticArray) -> None:
         for st in msg.status:
-            if st.name == "plant_simulator":
+            if st.name == topics.DEFAULT.status("plant_simulator"):
                 plant.update({kv.key: kv.value for kv in st.values})
 
     probe.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diag, qos.status())

@@ -8,7 +8,8 @@ import sys
 
 import pytest
 
-from dcsms_ros.cli.up import graph_children, set_rt_priority
+from dcsms_ros.graph import define_graph
+from dcsms_ros.nodes.deploy import children
 from dcsms_ros.nodes.runtime import RT_PRIORITY_ENV
 
 _PROBE = ("import os; from dcsms_ros.nodes.runtime import apply_rt_priority as a; w = a(); "
@@ -49,10 +50,9 @@ def test_valid_priority_is_applied_or_refused_aloud() -> None:
         assert "refused" in warning
 
 
-def test_rt_priority_covers_only_the_control_path(tmp_path) -> None:
+def test_rt_priority_covers_only_the_control_path(tmp_path, cfg) -> None:
     """--rt-priority: plant, decoupling and controllers; not mode_switch (nor the recorder)."""
-    kids = graph_children(2, tmp_path / "params.yaml")
-    set_rt_priority(kids, 50)
+    kids = children(define_graph(cfg), tmp_path / "params.yaml", rt_priority=50)
     got = {k.name: k.env.get(RT_PRIORITY_ENV) for k in kids}
     assert got == {"mode_switch": None, "fb_stage1": "50", "fb_stage2": "50", "ff_stage1": "50",
                    "sensor_decoupling": "50", "plant_simulator": "50"}

@@ -25,11 +25,12 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from dcsms_ros.cli.up import Child, child_env, graph_children, params_document
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode
+from dcsms_ros.graph import define_graph
 from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.deploy import Child, child_env, children
 
 REPO = Path(__file__).resolve().parents[2]
 TABLE1 = REPO / "config" / "table1.yaml"
@@ -98,15 +99,16 @@ class Graph:
 
     def __init__(self, cfg: SystemConfig, tmp: Path, schedule: str = "realtime",
                  mode: Mode = Mode.DFBC_FFC, duration_s: float = 0.0,
-                 extra: dict[str, dict[str, Any]] | None = None) -> None:
+                 extra: dict[str, dict[str, Any]] | None = None,
+                 allow_unstable: bool = False) -> None:
         self.cfg, self.mode, self.tmp = cfg, mode, tmp
-        doc = params_document(cfg, schedule, mode, duration_s, [])
+        spec = define_graph(cfg, schedule=schedule, mode=mode, duration_s=duration_s,
+                            allow_unstable=allow_unstable)
         for node, values in (extra or {}).items():
-            doc.setdefault(f"{topics.NAMESPACE}/{node}", {"ros__parameters": {}})
-            doc[f"{topics.NAMESPACE}/{node}"]["ros__parameters"].update(values)
+            spec = spec.with_params(node, **values)
         self.params = tmp / "params.yaml"
-        self.params.write_text(yaml.safe_dump(doc, sort_keys=False))
-        self.kids = {k.name: k for k in graph_children(cfg.plant.num_stages, self.params)}
+        self.params.write_text(yaml.safe_dump(spec.params_document(), sort_keys=False))
+        self.kids = {k.name: k for k in children(spec, self.params)}
         self.env = child_env()
         for kid in self.kids.values():
             self.start(kid.name)
@@ -212,10 +214,13 @@ class Probe:
     def _on_diag(self, m: DiagnosticArray) -> None:
         with self.lock:
             for st in m.status:
+                name = topics.DEFAULT.local_status(st.name)
+                if name is None:
+                    continue  # another graph's node
                 values = {kv.key: kv.value for kv in st.values}
-                self.diag[st.name] = values
-                self.diag_msgs[st.name] = st.message
-                self.diag_log.append((mono_ns(), st.name, st.message, values))
+                self.diag[name] = values
+                self.diag_msgs[name] = st.message
+                self.diag_log.append((mono_ns(), name, st.message, values))
 
     def _on_mode(self, m: String) -> None:
         with self.lock:

@@ -40,9 +40,12 @@ def _read(bag: Path) -> tuple[Counter, dict[str, set[int]], dict[str, dict[str, 
             msg = deserialize_message(bytes(raw), types[conn.topic])
             if isinstance(msg, DiagnosticArray):
                 for st in msg.status:
-                    final[st.name] = {kv.key: kv.value for kv in st.values}
-                    if st.name == "plant_simulator":
-                        sim_times.append(float(final[st.name]["sim_time_s"]))
+                    name = topics.DEFAULT.local_status(st.name)
+                    if name is None:
+                        continue
+                    final[name] = {kv.key: kv.value for kv in st.values}
+                    if name == "plant_simulator":
+                        sim_times.append(float(final[name]["sim_time_s"]))
             elif hasattr(msg, "header"):
                 stamps[conn.topic].add(msg.header.stamp.sec * 1_000_000_000
                                        + msg.header.stamp.nanosec)

@@ -1,0 +1,140 @@
+"""Composed deployment: every node of a graph in one process, one driver thread for the cycle.
+
+``python -m dcsms_ros.nodes.container --graph GRAPH.yaml --params-file PARAMS.yaml`` (what
+``dcsms up --composed`` and the launch argument ``composed:=true`` run) creates each node of the
+graph (:mod:`dcsms_ros.graph`) with its own class, name, parameters and services, all on one
+rclpy context. The node classes are the ones of the one-process-per-node deployment; what
+changes is who serves their per-sample subscriptions: one :class:`~.hotpath.HotLoop`, the
+*driver*, serves every node's hot path in one thread (:func:`.hotpath.drive`). In lockstep the
+plant publishes sample k, the decoupling takes it and answers, each controller takes that
+answer and answers in turn, and the plant takes the forces and publishes k+1 - every hop
+through the nodes' real publishers and subscriptions, so a subscriber in another process (a
+recorder, ``ros2 topic echo``) sees every message; in one process a published message is in
+the other node's subscription at once, which makes a hop cost microseconds instead of a
+process switch. In real time the plant's pacer runs the same cycle at its deadlines. Services,
+parameters, timers, ``/clock`` and the mode switch stay on a multi-threaded executor.
+
+``--rt-priority N`` puts the driver thread (only it) under SCHED_FIFO. ``--record OUT
+[TOPIC ...]`` runs the recorder node in this process too (``dcsms up --recorder composed``).
+Exit status: 0 after SIGINT/SIGTERM or a finished run, 2 after a configuration error (one line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import signal
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import rclpy
+import yaml
+from rclpy.context import Context
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+from dcsms_ros.errors import DcsmsError
+from dcsms_ros.graph import GraphSpec, NodeSpec, spec_from_dict
+from dcsms_ros.nodes import hotpath
+from dcsms_ros.nodes.deploy import LOCKSTEP_WRITER_DEPTH
+from dcsms_ros.nodes.runtime import POLL_S, close_node, config_error, localhost_only, quiesce
+
+#: Executor threads: services and parameters of six nodes, the mode switch's calls.
+EXECUTOR_THREADS = 3
+
+
+def node_class(spec: NodeSpec) -> Any:
+    """The class of a node (``module:Class`` of :data:`dcsms_ros.graph.NODE_CLASSES`)."""
+    module, _, cls = spec.node_class.partition(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def create_nodes(spec: GraphSpec, ctx: Context) -> list[Node]:
+    """Every node of ``spec`` on ``ctx``, in the spec's order (parameters come from the
+    context's ``--params-file``, by each node's full name)."""
+    nodes = []
+    for n in spec.nodes:
+        remap = [a for f, t in n.remappings for a in ("-r", f"{f}:={t}")]
+        nodes.append(node_class(n)(node_name=n.name, namespace=spec.namespace, context=ctx,
+                                   cli_args=["--ros-args", *remap] if remap else None))
+    return nodes
+
+
+def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
+        record: Sequence[str] = ()) -> int:
+    """Run the composed graph until a signal or the plant's end; see the module notes."""
+    localhost_only()
+    stopped = {"flag": False}
+
+    def on_signal(signum: int, frame: Any) -> None:
+        stopped["flag"] = True
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
+    spec = spec_from_dict(yaml.safe_load(graph_file.read_text()))
+    ctx = Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(params_file)], context=ctx,
+               signal_handler_options=SignalHandlerOptions.NO)
+    loop = hotpath.drive(ctx, "driver")
+    nodes: list[Node] = []
+    recorder: Any = None
+    executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS, context=ctx)
+    status = 0
+    try:
+        if record:
+            from dcsms_ros.nodes.recorder import Recorder
+
+            recorder = Recorder(record[0], list(record[1:]) or None, context=ctx,
+                                queue_depth=LOCKSTEP_WRITER_DEPTH if spec.schedule ==
+                                "lockstep" else None)
+            executor.add_node(recorder)
+        nodes = create_nodes(spec, ctx)
+        for nd in nodes:
+            executor.add_node(nd)
+        loop.start(rt_priority)
+        if loop.rt_warning:
+            nodes[-1].get_logger().warning(loop.rt_warning)
+        plant = next((nd for nd in nodes if hasattr(nd, "barrier")), None)
+        while not stopped["flag"] and ctx.ok() and not getattr(plant, "finished", False):
+            executor.spin_once(timeout_sec=POLL_S)
+            if loop.error is not None:
+                raise loop.error
+    except DcsmsError as exc:
+        status = config_error(exc)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        loop.stop()
+        hotpath.undrive(ctx)
+        since = time.time_ns()
+        for nd in reversed(nodes):
+            quiesce(executor, nd, timeout_s=1.0)
+            close_node(nd)
+        if recorder is not None:
+            recorder.drain(executor, since)
+            print(recorder.finish().text(), flush=True)
+            recorder.destroy_node()
+        executor.shutdown(timeout_sec=2.0)
+        rclpy.try_shutdown(context=ctx)
+    return status
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """``python -m dcsms_ros.nodes.container --graph FILE --params-file FILE``."""
+    ap = argparse.ArgumentParser(prog="dcsms_ros.nodes.container", description=__doc__.split(
+        "\n\n")[0])
+    ap.add_argument("--graph", type=Path, required=True, help="graph file (GraphSpec YAML)")
+    ap.add_argument("--params-file", type=Path, required=True, help="ROS 2 params file")
+    ap.add_argument("--rt-priority", type=int, default=0, help="SCHED_FIFO of the driver")
+    ap.add_argument("--record", nargs="+", default=(), metavar="OUT [TOPIC]",
+                    help="run the recorder here too: bag directory, then topics")
+    a = ap.parse_args(argv)
+    sys.exit(run(a.graph, a.params_file, a.rt_priority, a.record))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,223 @@
+"""Start a graph (:class:`~dcsms_ros.graph.GraphSpec`), supervise it, stop it cleanly.
+
+Two deployments of the same nodes:
+
+* **one process per node** (the ``ros2 run`` deployment, ``dcsms up``'s default): each node
+  runs as ``python -m dcsms_ros.nodes.<executable> --ros-args -r __node:=<name> -r
+  __ns:=<namespace> --params-file <file>``;
+* **composed** (``--composed``): every node in one process (:mod:`.container`), on one rclpy
+  context, the per-sample cycle run by one driver thread.
+
+Both read one params file (:meth:`GraphSpec.params_document`). A recorder (``--record``) runs as
+its own process, or inside the composed process (``recorder="composed"``). Stop: every process
+gets SIGINT, then SIGTERM and SIGKILL after a timeout; the graph first, so the recorder receives
+everything it published. Node logs go to files in ``log_dir`` unless ``verbose``.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from dcsms_ros.core.modes import Mode
+from dcsms_ros.graph import RT_PRIORITY_ENV, GraphSpec
+
+#: Recorder reader history in lockstep runs (= the writers', dcsms_ros.nodes.qos).
+LOCKSTEP_WRITER_DEPTH = 25000
+
+#: Seconds a process gets to exit after SIGINT, then after SIGTERM, before SIGKILL.
+STOP_TIMEOUTS = (5.0, 2.0)
+#: The same for the recorder, which writes its whole backlog first (recorder.DRAIN_MAX_S).
+RECORDER_STOP_TIMEOUTS = (40.0, 5.0)
+RECORDERS = ("process", "composed")
+
+
+@dataclass
+class Child:
+    """One process."""
+
+    name: str
+    argv: list[str]
+    log: Path | None = None
+    proc: subprocess.Popen | None = None
+    env: dict[str, str] = field(default_factory=dict)
+
+
+def node_argv(spec: GraphSpec, name: str, params_file: Path) -> list[str]:
+    """Command line of node ``name`` as its own process."""
+    n = spec.node(name)
+    remap = [a for f, t in n.remappings for a in ("-r", f"{f}:={t}")]
+    return [sys.executable, "-m", n.module, "--ros-args", "-r", f"__node:={n.name}",
+            "-r", f"__ns:={spec.namespace}", "--params-file", str(params_file), *remap]
+
+
+def children(spec: GraphSpec, params_file: Path, rt_priority: int = 0) -> list[Child]:
+    """One process per node (argv only, not started), in the spec's start order;
+    ``rt_priority`` (1-99) puts the control-path nodes under SCHED_FIFO."""
+    kids = []
+    for n in spec.nodes:
+        kid = Child(n.name, node_argv(spec, n.name, params_file))
+        if rt_priority and n.control_path:
+            kid.env[RT_PRIORITY_ENV] = str(rt_priority)
+        kids.append(kid)
+    return kids
+
+
+def composed_child(graph_file: Path, params_file: Path, rt_priority: int = 0,
+                   record: Sequence[str] = ()) -> Child:
+    """The composed process: every node of ``graph_file`` in one process (``record``: the
+    recorder's ``OUT [TOPIC ...]`` to run inside it too)."""
+    argv = [sys.executable, "-m", "dcsms_ros.nodes.container", "--graph", str(graph_file),
+            "--params-file", str(params_file), "--rt-priority", str(rt_priority)]
+    if record:
+        argv += ["--record", *record]
+    return Child("graph", argv)
+
+
+def recorder_command(out: str | Path, topics: Sequence[str] | None = None,
+                     storage: str = "mcap", duration_s: float | None = None) -> list[str]:
+    """The argv that runs ``dcsms record`` as a child process with this interpreter.
+
+    Start it with ``subprocess.Popen`` before the graph's publishers, stop it with
+    ``proc.send_signal(signal.SIGINT)`` (or SIGTERM) and ``proc.wait()``: exit 0 means the bag
+    is complete; the report is on the child's stdout.
+    """
+    cmd = [sys.executable, "-m", "dcsms_ros.cli", "record", str(out), "--storage", storage]
+    if topics:
+        cmd += ["--topics", *topics]
+    if duration_s is not None:
+        cmd += ["--duration", repr(float(duration_s))]
+    return cmd
+
+
+def child_env() -> dict[str, str]:
+    """Environment of the processes: localhost discovery, unbuffered, plain logs."""
+    env = dict(os.environ)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env["PYTHONUNBUFFERED"] = "1"
+    env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+    return env
+
+
+def start(kids: Sequence[Child], log_dir: Path, verbose: bool) -> None:
+    """Start every child in its own session (the terminal's Ctrl-C reaches only ``up``)."""
+    env = child_env()
+    for kid in kids:
+        out: Any = None
+        if not verbose:
+            kid.log = log_dir / f"{kid.name}.log"
+            out = kid.log.open("wb")
+        kid.proc = subprocess.Popen(kid.argv, stdout=out, stderr=subprocess.STDOUT if out else
+                                    None, stdin=subprocess.DEVNULL, env={**env, **kid.env},
+                                    start_new_session=True)
+        if out is not None:
+            out.close()
+
+
+def stop(kids: Sequence[Child], timeouts: tuple[float, float] = STOP_TIMEOUTS) -> None:
+    """SIGINT to every running child, then SIGTERM, then SIGKILL after the timeouts."""
+    for sig, timeout in ((signal.SIGINT, timeouts[0]), (signal.SIGTERM, timeouts[1]),
+                         (signal.SIGKILL, 5.0)):
+        alive = [k for k in kids if k.proc is not None and k.proc.poll() is None]
+        if not alive:
+            return
+        for k in alive:
+            try:
+                k.proc.send_signal(sig)  # type: ignore[union-attr]
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + timeout
+        for k in alive:
+            try:
+                k.proc.wait(max(deadline - time.monotonic(), 0.0))  # type: ignore[union-attr]
+            except subprocess.TimeoutExpired:
+                pass
+
+
+@dataclass
+class Deployment:
+    """How to run a graph; see :func:`run_graph`."""
+
+    composed: bool = False
+    rt_priority: int = 0
+    record: Path | None = None
+    record_topics: Sequence[str] | None = None
+    recorder: str = "process"
+    log_dir: Path = Path("/tmp")
+    verbose: bool = False
+    connect_timeout: float = 30.0
+    expect_finish: bool = False
+    events: Sequence[tuple[float, Mode]] = ()
+
+
+def write_files(spec: GraphSpec, log_dir: Path) -> tuple[Path, Path]:
+    """The run's params file and (for the composed process) the graph file, in ``log_dir``."""
+    params_file = log_dir / "params.yaml"
+    params_file.write_text(yaml.safe_dump(spec.params_document(), sort_keys=False))
+    graph_file = log_dir / "graph.yaml"
+    graph_file.write_text(yaml.safe_dump(spec.to_dict(), sort_keys=False))
+    return params_file, graph_file
+
+
+def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], bool],
+              rate_hz: float, announce: Callable[[int], None] = lambda n: None) -> int:
+    """Start ``spec``, supervise it until ``stop_requested()`` or the plant finished, stop.
+
+    Returns 0 after a clean stop or finish, 1 if a process died, the graph did not connect or
+    the recorder failed. ``announce(number of processes)`` is called once they started.
+    """
+    from dcsms_ros.nodes.monitor import GraphMonitor  # rclpy only when needed
+
+    how.log_dir.mkdir(parents=True, exist_ok=True)
+    params_file, graph_file = write_files(spec, how.log_dir)
+    kids: list[Child] = []
+    in_process: list[str] = []
+    if how.record is not None:
+        topics = list(how.record_topics or [f"{spec.namespace.rstrip('/')}/*", "/diagnostics"])
+        if how.composed and how.recorder == "composed":
+            in_process = [str(how.record), *topics]
+        else:
+            # lockstep: the reader history covers as much as the writers' (qos.py)
+            depth = ["--queue-depth", str(LOCKSTEP_WRITER_DEPTH)] \
+                if spec.schedule == "lockstep" else []
+            kids.append(Child("recorder", recorder_command(how.record, topics) + depth))
+    if how.composed:
+        graph = [composed_child(graph_file, params_file, how.rt_priority, in_process)]
+    else:
+        graph = children(spec, params_file, how.rt_priority)
+    status = 0
+    monitor = None
+    try:
+        start(kids, how.log_dir, how.verbose)  # recorder first: it must see the first samples
+        start(graph, how.log_dir, how.verbose)
+        announce(len(graph))
+        monitor = GraphMonitor(spec, how.events, rate_hz)
+        status = monitor.supervise(graph + kids, stop_requested, how.connect_timeout,
+                                   how.expect_finish)
+    finally:
+        if monitor is not None:
+            monitor.close()
+        # the graph first (composed with the recorder inside: its drain too), so the recorder
+        # receives everything it published
+        stop(graph, RECORDER_STOP_TIMEOUTS if in_process else STOP_TIMEOUTS)
+        stop(kids, RECORDER_STOP_TIMEOUTS)
+    if kids and kids[0].proc is not None and kids[0].proc.returncode not in (0, None):
+        print(f"dcsms up: the recorder exited with status {kids[0].proc.returncode}",
+              file=sys.stderr)
+        status = status or 1
+    if in_process and graph[0].proc is not None and graph[0].proc.returncode not in (0, None):
+        status = status or 1
+    return status
+
+
+__all__ = ["RECORDERS", "Child", "Deployment", "child_env", "children", "composed_child",
+           "node_argv", "recorder_command", "run_graph", "start", "stop", "write_files"]

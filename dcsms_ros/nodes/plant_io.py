@@ -1,0 +1,287 @@
+"""The plant node's publications, start-up handshake, diagnostics and benchmark timing.
+
+:class:`PlantIO` owns the plant's publishers and what it reports; the node
+(:mod:`.plant_simulator`) owns the stepping and the protocols. Per sample the raw channels go
+out first (the control path waits for them), then the previous sample's applied forces, the
+clock and the true velocities; observer topics nobody subscribes to are not serialized at all.
+
+Handshake: sample 0 is published only once every force topic has a publisher, the raw topic a
+subscriber, with ``trip_gate`` mode_switch's trip topics are connected, each topic in
+``wait_for_subscribers`` has a subscriber outside the graph (a recorder or test probe), and the
+plant's own writers matched every reader, then :data:`SETTLE_S` more; or after
+``handshake_timeout_s``.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import TwistStamped
+from rclpy.clock import Clock, ClockType
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
+
+from dcsms_ros.core import topics
+from dcsms_ros.core.simulator import PlantSimulator
+from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.msgs import node_status, sample_ns, to_stamp
+from dcsms_ros.nodes.params import declare_observed, outside_graph, publishers_matched
+from dcsms_ros.nodes.runtime import ACK_WAIT_FINISHED_S, ACK_WAIT_S, wait_acked
+from dcsms_ros.nodes.wire import JointStateWriter, StampedWriter, header_bytes
+from dcsms_ros.protocols.barrier import LockstepBarrier
+
+#: Seconds the handshake waits after the graph looks connected, so DDS endpoints match too.
+SETTLE_S = 0.2
+STEADY = Clock(clock_type=ClockType.STEADY_TIME)
+
+
+class PlantIO:
+    """Publishers, handshake, reports and timing of a plant node.
+
+    Parameters
+    ----------
+    node : PlantSimulatorNode
+        The node (its options, barrier, pacer, held inputs and controllers).
+    sim : PlantSimulator
+        The simulated plant.
+    trip_gate : bool
+        Lockstep trip checkpoints: publish ``trip/check`` and expect mode_switch.
+    """
+
+    def __init__(self, node: Any, sim: PlantSimulator, trip_gate: bool) -> None:
+        self.node, self.sim = node, sim
+        opts = node.opts
+        names = topics.LOCAL
+        pub_qos = qos.stream_pub(node.lockstep)
+        self.bodies = topics.body_names(sim.cfg.plant.num_stages)
+        self.observed = declare_observed(node)
+        self.pub_clock = node.create_publisher(ClockMsg, topics.CLOCK, qos.clock())
+        self.pub_raw = node.create_publisher(JointState, names.sensors_raw, pub_qos)
+        self.pub_applied = node.create_publisher(JointState, names.actuators_applied, pub_qos)
+        self.pub_truth = [node.create_publisher(TwistStamped, names.truth(b), pub_qos)
+                          for b in self.bodies] if opts.publish_truth else []
+        self.pub_diag = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        self.pub_check = (node.create_publisher(Header, names.trip_check, qos.stream_pub(True))
+                          if trip_gate else None)
+        # the per-sample messages are serialized here directly (wire.py: no message objects)
+        self._w_raw = JointStateWriter([c.name for c in sim.channels], "velocity")
+        self._w_applied = JointStateWriter(sim.actuator_names, "effort")
+        self._w_truth = [StampedWriter(TwistStamped, b, sim.cfg.plant.dof) for b in self.bodies]
+        self.clock_every = max(1, int(round(sim.cfg.plant.rate_hz / opts.clock_rate_hz)))
+        self.ns = 0
+        self._raw_msg = b""
+        self._applied: tuple[np.ndarray, int] | None = None
+        self._wall_to_mono = time.monotonic_ns() - time.time_ns()
+        self._t_pub: list[int] = []  # timing_file: monotonic ns of each sample's publication
+        self._lat: dict[str, list[int]] = {c: [] for c in node.controllers}
+        self._cpu = [0.0, 0.0]
+        self._nonfinite_seen = 0
+        self.stale_at: dict[str, tuple[int, int]] = dict.fromkeys(node.controllers, (0, 0))
+        self._t_start = time.monotonic()
+        self._ready_at: float | None = None
+        self._t_run = 0.0
+        self._rate_mark = (0, self._t_start)
+        self.achieved_hz = 0.0
+        #: 0-based stage the excitation's frame_id names (None: not known yet, or not a stage)
+        self.exc_stage: int | None = None
+
+    # -- handshake ---------------------------------------------------------------------------
+    def _missing(self) -> list[str]:
+        """What the graph still lacks before sample 0 can be published."""
+        nd, names = self.node, topics.LOCAL
+        out = [f"publisher of {names.force(c)}" for c in nd.controllers
+               if nd.count_publishers(names.force(c)) == 0]
+        if nd.count_subscribers(names.sensors_raw) == 0:
+            out.append(f"subscriber of {names.sensors_raw}")
+        if self.pub_check is not None and (nd.count_publishers(names.trip_checked) == 0
+                                           or nd.count_subscribers(names.trip_check) == 0):
+            out.append("mode_switch's trip checkpoints")
+        out += [f"observer of {t}" for t in self.observed if not outside_graph(nd, t)]
+        own = [self.pub_raw, self.pub_applied, *self.pub_truth]
+        if self.pub_check is not None:
+            own.append(self.pub_check)
+        if not out and not publishers_matched(nd, own, self.observed):
+            out.append("DDS matching of the plant's publishers")
+        return out
+
+    def handshake(self, now: float) -> bool:
+        """True once sample 0 may go out (then the run's clocks start)."""
+        missing = self._missing()
+        if missing and now - self._t_start < self.node.opts.handshake_timeout_s:
+            self._ready_at = None
+            return False
+        if missing:
+            self.node.get_logger().warning(f"starting without: {', '.join(missing)}")
+        elif self._ready_at is None:
+            self._ready_at = now
+            return False
+        elif now - self._ready_at < SETTLE_S:
+            return False
+        self._t_run = now
+        self._cpu[0] = time.process_time()
+        self._rate_mark = (self.sim.k, now)
+        self.node.get_logger().info("graph connected: stepping")
+        return True
+
+    # -- publishing --------------------------------------------------------------------------
+    def publish_sample(self, k: int) -> int:
+        """Publish sample ``k`` (the core calls keep the engine's order); returns its stamp."""
+        ns = sample_ns(k, self.sim.cfg.plant.rate_hz)
+        self.ns = ns
+        if self.node.opts.timing_file:
+            self._t_pub.append(time.monotonic_ns())
+        truth = self.sim.truth().copy()
+        raw = self.sim.measure()
+        self._raw_msg = self._w_raw.encode(ns, raw)
+        self.pub_raw.publish(self._raw_msg)
+        self.flush_applied()
+        if k % self.clock_every == 0:
+            self.pub_clock.publish(ClockMsg(clock=to_stamp(ns)))
+        for b, (pub, v) in enumerate(zip(self.pub_truth, truth, strict=False)):
+            if pub.get_subscription_count():
+                pub.publish(self._w_truth[b].encode(ns, v))
+        return ns
+
+    def ask_trip(self, ns: int) -> None:
+        """Ask mode_switch to judge the trip checkpoint ending at the sample stamped ``ns``."""
+        if self.pub_check is not None:
+            self.pub_check.publish(header_bytes(ns, "check"))
+
+    def republish(self, trip: bool) -> None:
+        """Lockstep retransmission of the current sample (and of the trip question)."""
+        self.pub_raw.publish(self._raw_msg)
+        if trip:
+            self.ask_trip(self.ns)
+
+    def flush_applied(self) -> None:
+        """Publish the applied forces held back by :meth:`advance` (lockstep)."""
+        if self._applied is not None:
+            applied, ns = self._applied
+            self._applied = None
+            if self.pub_applied.get_subscription_count():
+                self.pub_applied.publish(self._w_applied.encode(ns, applied))
+
+    def excitation_frame(self, frame: str) -> None:
+        """Learn the stage of the excitation from its ``frame_id`` (logged if not a stage:
+        the excitation then adds nothing)."""
+        if frame in self.bodies[1:]:
+            self.exc_stage = self.bodies.index(frame) - 1
+            return
+        self.node.get_logger().error(f"excitation frame_id {frame!r} is not a stage "
+                                     f"({', '.join(self.bodies[1:])}): ignored",
+                                     throttle_duration_sec=5.0)
+
+    def advance(self, wrenches: dict[str, np.ndarray], lockstep: bool) -> None:
+        """Step the plant with ``wrenches`` (the excitation's, if any, is added after the
+        controllers' as the batch engine does); lockstep publishes the applied forces after the
+        next raw sample, off the loop's critical path."""
+        exc = None
+        if topics.EXCITATION_ID in wrenches:
+            w = wrenches.pop(topics.EXCITATION_ID)
+            exc = np.zeros((len(self.bodies) - 1, self.sim.dof))
+            if self.exc_stage is not None:
+                exc[self.exc_stage] = w
+        self._applied = (self.sim.advance(wrenches, exc), self.ns)
+        if not lockstep:
+            self.flush_applied()
+        if self.sim.nonfinite_inputs != self._nonfinite_seen:
+            self._nonfinite_seen = self.sim.nonfinite_inputs
+            self.node.get_logger().warning(f"non-finite force commands ignored (total "
+                                           f"{self._nonfinite_seen})", throttle_duration_sec=2.0)
+
+    # -- events ------------------------------------------------------------------------------
+    def arrival(self, info: dict[str, Any]) -> int:
+        """Monotonic ns of a drained message's DDS reception."""
+        return int(info["received_timestamp"]) + self._wall_to_mono
+
+    def latency(self, cid: str, stamp: int, rx_ns: int | None) -> int:
+        """The arrival time (monotonic ns) of a force; records its latency for benchmarks."""
+        now_ns = time.monotonic_ns() if rx_ns is None else rx_ns
+        if self.node.opts.timing_file:  # sensor-to-force: sample publication -> force arrival
+            k = round(stamp * self.sim.cfg.plant.rate_hz / 1e9)
+            if 0 <= k < len(self._t_pub):
+                self._lat[cid].append(now_ns - self._t_pub[k])
+        return now_ns
+
+    def missed(self, missing: list[str], absent: list[str], barrier: LockstepBarrier) -> None:
+        """Log a lockstep timeout."""
+        log = self.node.get_logger()
+        for c in absent:
+            log.error(f"{c} missed {barrier.consec[c]} samples in a row: absent, not waited "
+                      f"for until it answers again")
+        log.warning(f"no answer from {', '.join(missing)} for t={self.ns / 1e9:.4f} s within "
+                    f"{barrier.timeout_s:g} s: zero force (faults {barrier.faults})",
+                    throttle_duration_sec=2.0)
+
+    def went_stale(self, c: str) -> None:
+        """Real time: the force of ``c`` just went stale (the fault tests read when)."""
+        self.stale_at[c] = (time.monotonic_ns(), self.sim.k)
+        self.node.get_logger().warning(f"force of {c} is stale (> {self.node.held.timeout_s:g}"
+                                       f" s): zero", throttle_duration_sec=2.0)
+
+    def done(self) -> None:
+        """The run's last sample: log the summary."""
+        self.flush_applied()
+        wall = time.monotonic() - self._t_run
+        self._cpu[1] = time.process_time()
+        over = self.node.pacer.overruns
+        dropped = f", {over} dropped as overruns" if over else ""
+        self.node.get_logger().info(
+            f"finished {self.sim.k} samples ({self.sim.t:.3f} s simulated) in {wall:.2f} s "
+            f"wall: {self.sim.k / max(wall, 1e-9):.0f} samples/s{dropped}")
+
+    # -- reporting ---------------------------------------------------------------------------
+    def report(self) -> None:
+        """Publish the plant's diagnostics (and one status per controller)."""
+        nd = self.node
+        k0, t0 = self._rate_mark
+        now = time.monotonic()
+        if nd.started and now > t0:
+            self.achieved_hz = (self.sim.k - k0) / (now - t0)
+            self._rate_mark = (self.sim.k, now)
+        states = {c: nd.controller_state(c) for c in nd.controllers}
+        bad = [c for c, s in states.items() if s != "ok"]
+        level = DiagnosticStatus.WARN if bad and nd.started else DiagnosticStatus.OK
+        msg = ("degraded: " + ", ".join(f"{c} {states[c]}" for c in bad) if bad and
+               nd.started else "running" if nd.started else "waiting for the graph")
+        b = nd.barrier
+        hold = b.hold if b.hold is not None else -1
+        values = {"schedule": nd.schedule, "sample": self.sim.k,
+                  "sim_time_s": f"{self.sim.t:.6f}", "achieved_rate_hz": f"{self.achieved_hz:.1f}",
+                  "rate_hz": f"{self.sim.cfg.plant.rate_hz:g}",
+                  "lockstep_timeouts": sum(b.faults.values()), "retransmits": b.retransmits,
+                  "stale_events": sum(nd.held.stale_events.values()),
+                  "overruns": nd.pacer.overruns, "nonfinite_inputs": self.sim.nonfinite_inputs,
+                  "rejected_inputs": nd.force_guard.rejected,
+                  "saturations": self.sim.saturations, "finished": nd.finished,
+                  "hold_sample": hold, "held": hold == self.sim.k and not b.waiting,
+                  "trip_checkpoints": b.state("trip") if "trip" in b.participants else "off"}
+        arr = DiagnosticArray()
+        arr.header.stamp = to_stamp(self.ns)
+        arr.status = [node_status(nd, level, msg, values)] + [
+            node_status(nd, DiagnosticStatus.OK if s == "ok" else DiagnosticStatus.WARN, s,
+                        {"timeouts": b.faults[c], "stale_events": nd.held.stale_events[c],
+                         "stale_at_mono_ns": self.stale_at[c][0],
+                         "stale_at_sample": self.stale_at[c][1],
+                         "last_input_mono_ns": int(max(nd.held.arrived(c), 0.0) * 1e9)}, sub=c)
+            for c, s in states.items()]
+        self.pub_diag.publish(arr)
+
+    def close(self) -> None:
+        """Write the timing file (benchmarks) and wait for reliable readers' acknowledgements."""
+        if self.node.opts.timing_file:
+            np.savez(self.node.opts.timing_file,
+                     t_pub_ns=np.asarray(self._t_pub, dtype=np.int64),
+                     cpu_s=np.asarray(self._cpu), rate_hz=self.sim.cfg.plant.rate_hz,
+                     overruns=self.node.pacer.overruns,
+                     **{f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
+                        for c, v in self._lat.items()})
+        pubs = [self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag]
+        wait_acked(pubs, ACK_WAIT_FINISHED_S if self.node.finished else ACK_WAIT_S)
+
+
+__all__ = ["SETTLE_S", "STEADY", "PlantIO"]

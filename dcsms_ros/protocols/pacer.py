@@ -1,0 +1,132 @@
+"""Real-time pacing of the plant: deadlines, overruns, and held inputs that go stale.
+
+Sample k is due at ``t0 + k / rate``. A plant that fell more than ``max_burst`` samples behind
+does not catch up in a burst: the backlog is dropped (counted as overruns) and the schedule
+moves on from now. Inputs (force commands) are *held*: the newest value of each is used until
+it is older than ``timeout_s``, then it counts as zero (stale).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+#: At most this many samples are computed at once to catch up.
+MAX_BURST = 20
+
+
+class Pacer:
+    """Deadlines of a loop at ``rate_hz`` (Hz) started at :meth:`start`."""
+
+    def __init__(self, rate_hz: float, max_burst: int = MAX_BURST) -> None:
+        self.rate = float(rate_hz)
+        self.max_burst = max_burst
+        self.t0 = 0.0
+        self.overruns = 0
+
+    def start(self, now: float) -> None:
+        """Sample 0 is due at ``now`` (s)."""
+        self.t0 = now
+
+    def due(self, now: float, k: int) -> int:
+        """How many samples to compute at ``now`` (s) when ``k`` are done."""
+        due = int((now - self.t0) * self.rate) + 1 - k
+        if due > self.max_burst:
+            # too far behind to catch up without a burst: drop the backlog, count it
+            self.overruns += due - 1
+            self.t0 += (due - 1) / self.rate
+            due = 1
+        return max(due, 0)
+
+    def wait_s(self, now: float, k: int) -> float:
+        """Seconds from ``now`` until sample ``k`` is due (negative: late)."""
+        return self.t0 + k / self.rate - now
+
+
+class HeldInputs:
+    """The newest value of each named input and when it arrived; stale after ``timeout_s``.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Inputs (controller ids).
+    timeout_s : float
+        Age at which a held value is stale and counts as ``zero``, s.
+    zero : Any
+        The value of a stale or never-seen input.
+    """
+
+    def __init__(self, names: Sequence[str], timeout_s: float, zero: Any) -> None:
+        self.names = list(names)
+        self.timeout_s = timeout_s
+        self.zero = zero
+        self._held: dict[str, tuple[Any, float]] = {}
+        self.stale = dict.fromkeys(self.names, True)
+        self.stale_events = dict.fromkeys(self.names, 0)
+
+    def put(self, name: str, value: Any, t: float) -> None:
+        """Input ``name`` got ``value`` at ``t`` (s)."""
+        self._held[name] = (value, t)
+
+    def arrived(self, name: str) -> float:
+        """When ``name`` last arrived (s), -inf if never."""
+        return self._held.get(name, (None, -math.inf))[1]
+
+    def take(self, now: float) -> tuple[dict[str, Any], list[str]]:
+        """The values to use at ``now`` (s), and the inputs that have just gone stale."""
+        out: dict[str, Any] = {}
+        newly = []
+        for n in self.names:
+            v, t = self._held.get(n, (self.zero, -math.inf))
+            stale = now - t > self.timeout_s
+            if stale and not self.stale[n]:
+                self.stale_events[n] += 1
+                newly.append(n)
+            self.stale[n] = stale
+            out[n] = self.zero if stale else v
+        return out, newly
+
+
+class Watchdog:
+    """A controller's input watchdog: stale when nothing arrived for ``timeout_s``.
+
+    Attributes
+    ----------
+    stale : bool
+    stale_events : int
+        Times it went stale.
+    """
+
+    def __init__(self, timeout_s: float) -> None:
+        self.timeout_s = timeout_s
+        self.last: float | None = None
+        self.stale = False
+        self.stale_events = 0
+
+    def feed(self, now: float) -> bool:
+        """An input arrived at ``now`` (s); True if it ends a stale period."""
+        self.last = now
+        back, self.stale = self.stale, False
+        return back
+
+    def check(self, now: float) -> bool | None:
+        """At ``now`` (s): None while fresh (or before the first input), else True when it
+        has just gone stale and False while it stays stale."""
+        if self.last is None or now - self.last <= self.timeout_s:
+            return None
+        newly = not self.stale
+        if newly:
+            self.stale = True
+            self.stale_events += 1
+        return newly
+
+    def wait_s(self, now: float) -> float | None:
+        """Seconds until the next :meth:`check` is due (a quarter timeout while stale)."""
+        if self.last is None:
+            return None
+        left = self.last + self.timeout_s - now
+        return left if left > 0.0 else max(self.timeout_s / 4.0, 1e-3)
+
+
+__all__ = ["MAX_BURST", "HeldInputs", "Pacer", "Watchdog"]

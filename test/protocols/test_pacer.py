@@ -1,0 +1,43 @@
+"""Real-time pacer, held inputs and watchdog with a fake clock."""
+
+from __future__ import annotations
+
+import math
+
+from dcsms_ros.protocols.pacer import HeldInputs, Pacer, Watchdog
+
+
+def test_deadlines_and_a_dropped_backlog() -> None:
+    """At 1 kHz sample k is due at t0 + k ms; more than 20 behind drops the backlog."""
+    p = Pacer(1000.0, max_burst=20)
+    p.start(100.0)
+    assert p.due(100.0, 0) == 1 and p.due(100.0, 1) == 0
+    assert math.isclose(p.wait_s(100.0, 1), 0.001)
+    assert p.due(100.0105, 1) == 10  # catching up in a burst
+    assert p.due(100.5, 11) == 1 and p.overruns == 489  # 500 due: 489 dropped, 1 computed
+    assert math.isclose(p.wait_s(100.5, 12), 0.001, abs_tol=1e-9)
+
+
+def test_held_inputs_go_stale_and_count_it_once() -> None:
+    """A force older than the timeout is zero; each fresh -> stale transition is one event."""
+    h = HeldInputs(["a", "b"], timeout_s=0.01, zero=0.0)
+    vals, newly = h.take(0.0)
+    assert vals == {"a": 0.0, "b": 0.0} and newly == []  # never seen: stale from the start
+    h.put("a", 3.0, 1.0)
+    h.put("b", 4.0, 1.0)
+    assert h.take(1.005) == ({"a": 3.0, "b": 4.0}, [])
+    h.put("a", 5.0, 1.012)
+    assert h.take(1.015) == ({"a": 5.0, "b": 0.0}, ["b"])
+    assert h.take(1.016)[1] == [] and h.stale_events == {"a": 0, "b": 1}
+    assert h.arrived("a") == 1.012 and h.arrived("zz") == -math.inf
+
+
+def test_watchdog() -> None:
+    """Fresh, then stale once, stays stale (repeated zero force), back on the next input."""
+    w = Watchdog(0.01)
+    assert w.check(5.0) is None and w.wait_s(5.0) is None  # nothing arrived yet
+    assert not w.feed(1.0)
+    assert w.check(1.005) is None and math.isclose(w.wait_s(1.005), 0.005)
+    assert w.check(1.02) is True and w.check(1.03) is False and w.stale_events == 1
+    assert math.isclose(w.wait_s(1.03), 0.0025)
+    assert w.feed(1.04) and not w.stale
