@@ -46,6 +46,9 @@ def register(subparsers: Any) -> None:
                    "DFBC+FFC must hold, each at least 1.15 x the next")
     p.add_argument("--corners", action="store_true",
                    help="also tune the feedback high-pass and sensor extension corners")
+    p.add_argument("--corner-min", type=float, default=0.02, metavar="HZ",
+                   help="with --corners: the lowest corner tried, Hz (how low the sensors can "
+                   "be trusted; default 0.02)")
     p.add_argument("--rotations", action="store_true",
                    help="also tune the rotational feedback gains (6dof)")
     p.add_argument("--max-evaluations", type=int, default=300, metavar="N",
@@ -112,7 +115,10 @@ def run(args: argparse.Namespace) -> int:
     target = read_target(args.target, axes) if args.target is not None else None
     if args.objective == "table4" and target is None:
         raise DcsmsError("--objective table4 needs --target FILE")
-    knobs = default_knobs(cfg, corners=args.corners, rotations=args.rotations)
+    if not 0 < args.corner_min < 1.0:
+        raise DcsmsError("--corner-min must be in (0, 1) Hz")
+    knobs = default_knobs(cfg, corners=args.corners, rotations=args.rotations,
+                          corner_min_hz=args.corner_min)
     order = [a.strip() for a in args.order.split(",") if a.strip()]
     problem = Problem(cfg, knobs, args.objective, target, args.min_gm, args.min_pm, order)
     say = (lambda *a: print(*a, file=sys.stderr, flush=True)) if args.json else (

@@ -94,13 +94,13 @@ class Knob:
 
 
 def default_knobs(cfg: SystemConfig, corners: bool = False,
-                  rotations: bool = False) -> list[Knob]:
+                  rotations: bool = False, corner_min_hz: float = 0.02) -> list[Knob]:
     """Translational feedback gains of every stage (z in 1dof), the feedforward gain, and with
     ``rotations`` the rotational gains (6dof), with ``corners`` the feedback high-pass corners
     and the sensor extension corner.
 
     Gains: 10 .. 1e6 N*s/m (translations), 1 .. 1e5 N*m*s/rad (rotations); feedforward
-    0 .. 1.05 (linear); corners 0.02 .. 1.0 Hz.
+    0 .. 1.05 (linear); corners ``corner_min_hz`` .. 1.0 Hz (how low the sensors can be trusted).
     """
     axes = [2] if cfg.plant.dof == 1 else [0, 1, 2] + ([3, 4, 5] if rotations else [])
     out = []
@@ -110,9 +110,9 @@ def default_knobs(cfg: SystemConfig, corners: bool = False,
             out.append(Knob(f"feedback.stage{i}.gain", a, lo, hi))
     out.append(Knob("feedforward.gain", -1, 0.0, 1.05, log=False))
     if corners:
-        out += [Knob(f"feedback.stage{i}.highpass_hz", -1, 0.02, 1.0)
+        out += [Knob(f"feedback.stage{i}.highpass_hz", -1, corner_min_hz, 1.0)
                 for i in range(1, cfg.plant.num_stages + 1)]
-        out.append(Knob("sensors.extension_hz", -1, 0.02, 1.0))
+        out.append(Knob("sensors.extension_hz", -1, corner_min_hz, 1.0))
     return out
 
 
