@@ -33,6 +33,12 @@ class Mode(enum.Enum):
         """Controller ids enabled in this mode."""
         return _ENABLED[self]
 
+    @property
+    def feedback(self) -> bool:
+        """Whether any feedback loop is closed (Passive and FFC are open loop: a stable plant
+        driven through a stable filter cannot become unstable)."""
+        return FB_STAGE1 in _ENABLED[self]
+
 
 _LABELS = {
     Mode.PASSIVE: "Passive",

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from dcsms_ros.analysis.export import write_result_bag
 from dcsms_ros.analysis.report import analyze
-from dcsms_ros.analysis.stability import envelope
+from dcsms_ros.analysis.stability import GROWTH_FACTOR, envelope
 from dcsms_ros.cli import main
 from dcsms_ros.core.check import stability
 from dcsms_ros.core.config import load_config
@@ -41,7 +42,7 @@ def test_growing_envelope_is_reported_unstable(tmp_path, capsys):
     out = tmp_path / "report"
     summary = analyze([bag], out_dir=out)
     seg = {s["mode"]: s for s in summary.segments}
-    assert seg["Passive"]["stability"]["unstable"] is False
+    assert seg["Passive"]["stability"] == {"unstable": False, "growing": [], "checked": False}
     st = seg["DFBC"]["stability"]
     assert st["unstable"] is True
     rate = max(g["rate_per_s"] for g in st["growing"])
@@ -62,3 +63,18 @@ def test_demo_verdict_fails_on_an_unstable_mode(tmp_path, capsys):
     out = capsys.readouterr().out
     assert status == 1
     assert "UNSTABLE: the velocity envelope grows in DFBC" in out
+
+
+def test_build_up_from_rest_is_not_growth():
+    """A lightly damped mode excited from rest rises and levels off: the ln-RMS steps shrink,
+    so it is not called unstable; an exponential of the same overall factor is."""
+    fs = 1000.0
+    t = np.arange(0, 12.0, 1 / fs)
+    carrier = np.sin(2 * np.pi * 5.0 * t)
+    settle = carrier * np.tanh(t / 4.0) ** 2         # ~5x build-up, levelling off
+    grow = carrier * np.exp(0.3 * t)               # keeps its pace
+    rising = envelope(settle, fs)
+    unstable = envelope(grow, fs)
+    assert rising is not None and unstable is not None
+    assert rising.factor > GROWTH_FACTOR and not rising.growing  # rises in every quarter
+    assert unstable.growing and unstable.rate_per_s == pytest.approx(0.3, rel=0.05)

@@ -3,14 +3,21 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+from dcsms_ros.analysis.predict import predict_table4
 from dcsms_ros.cli import main
+from dcsms_ros.core.config import load_config
+from dcsms_ros.core.modes import ALL_MODES
+
+TABLE1 = Path(__file__).resolve().parents[2] / "config" / "table1.yaml"
+TEM = TABLE1.parent / "tem_paper_fit.yaml"
 
 
 def test_batch_demo_reproduces_the_paper_ordering(tmp_path, capsys):
     """Six modes, recorded and analysed: Z ordering as Table 4, DFBC+FFC <= 0.1, no saturation."""
     out = tmp_path / "demo"
-    assert main(["demo", "--engine", "batch", "--out", str(out)]) == 0
+    assert main(["demo", "--engine", "batch", "--config", str(TABLE1), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "Passive > FBC > FBC+FFC > DFBC > DFBC+FFC: reproduced" in text
     summary = json.loads((out / "summary.json").read_text())
@@ -39,7 +46,29 @@ def test_demo_refuses_to_replace_a_foreign_directory(tmp_path, capsys):
 def test_demo_with_a_mode_subset_is_judged_on_the_modes_it_ran(tmp_path, capsys):
     """--modes Passive,DFBC+FFC: exit 0, the ordering of those two, the skipped ones named."""
     out = tmp_path / "sub"
-    assert main(["demo", "--engine", "batch", "--modes", "Passive,DFBC+FFC", "--segment", "7",
-                 "--out", str(out)]) == 0
+    assert main(["demo", "--engine", "batch", "--config", str(TABLE1), "--modes",
+                 "Passive,DFBC+FFC", "--segment", "7", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "Passive > DFBC+FFC: reproduced (not run: FBC, FBC+FFC, DFBC)" in text
+
+
+def test_default_demo_is_the_papers_tem_experiment(tmp_path, capsys):
+    """No --config: the three-point TEM in X / Y / Z, 60 s per mode with the batch engine. Every
+    axis keeps the paper's order, nothing saturates, and each normalised value lies within
+    50 % of the loop model's prediction for a long run (60 s segments scatter ~15 %)."""
+    out = tmp_path / "tem"
+    assert main(["demo", "--engine", "batch", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    for axis in "XYZ":
+        assert f"order in {axis} " in text and "NOT reproduced" not in text
+    summary = json.loads((out / "summary.json").read_text())
+    assert f"config {TEM}" in text
+    cfg = load_config(TEM)
+    model = predict_table4(cfg, ALL_MODES).values
+    for seg in summary["segments"]:
+        assert seg["duration_s"] >= 59.0
+        for f in seg["forces"]:
+            assert f["saturated_samples"] == 0
+        for axis in "xyz":
+            ours = seg["axes"][axis]["normalized"]
+            assert abs(ours / model[seg["mode"]][axis] - 1.0) < 0.5, (seg["mode"], axis, ours)
