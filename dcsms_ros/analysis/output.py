@@ -134,7 +134,9 @@ def _md_table4(s: Summary) -> str:
         st = seg.get("stability", {})
         grow = ", ".join(f"{g['body']} {g['axis']} grows {g['rate_per_s']:.2g} /s"
                          for g in st.get("growing", []))
-        cells.append(f"**unstable** ({grow})" if st.get("unstable") else "steady")
+        cells.append(f"**unstable** ({grow})" if st.get("unstable") else
+                     f"growing, model stable ({grow})" if grow else
+                     "steady" if st.get("checked", True) else "open loop")
         rows.append(f"| {seg['segment']} | " + " | ".join(cells) + " |")
     return "\n".join(rows)
 

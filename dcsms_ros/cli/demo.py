@@ -31,10 +31,16 @@ ORDER = ("Passive", "FBC", "FBC+FFC", "DFBC", "DFBC+FFC")
 BEST_MAX = 0.1
 #: The demo's default configuration: the paper's experiment.
 DEFAULT_CONFIG = "config/tem_paper_fit.yaml"
-#: Default seconds analysed per mode: the graph runs near real time, the batch engine ~100x
-#: faster, so it affords segments long enough for 0.03 Hz resolution and a steady reference.
-GRAPH_SEGMENT_S = 12.0
+#: Default seconds analysed per mode. The TEM's Table-4 values scatter with the segment length
+#: (docs/tem.md): with 12 s the paper's order flipped in 2 of 3 seeds, with 24 s and 30 s in
+#: none of 3 (X's DFBC and DFBC+FFC, predicted only 1.3x apart, can still swap by chance). The
+#: graph runs near real time, so 24 s (~4 min); the batch engine affords 60 s.
+GRAPH_SEGMENT_S = 24.0
 BATCH_SEGMENT_S = 60.0
+#: A swap of two modes the model predicts closer than this ratio is within the scatter of a
+#: demo-length segment (X's FBC / FBC+FFC and DFBC / DFBC+FFC are 1.2x and 1.3x apart; with 24-37 s
+#: segments single values scatter by +-30 %), so it does not fail the verdict; it is named.
+CLOSE_RATIO = 1.5
 #: Marker that lets a new demo replace the output of an earlier one (and nothing else).
 MARKER = ".dcsms-demo"
 
@@ -52,9 +58,8 @@ def register(subparsers: Any) -> None:
                    help="output directory: bag/, report.md, PNGs, summary.json (default "
                    "out/demo; an earlier demo there is replaced)")
     p.add_argument("--segment", type=float, default=None, metavar="S",
-                   help="simulated seconds analysed per mode (default 12 with the graph, "
-                   f"{BATCH_SEGMENT_S:g} with the batch engine: the TEM's 0.5 Hz mounts need "
-                   "long segments for a steady Passive reference)")
+                   help="simulated seconds analysed per mode (default 24 with the graph, "
+                   f"{BATCH_SEGMENT_S:g} with the batch engine; shorter segments scatter)")
     p.add_argument("--settle", type=float, default=1.0, metavar="S",
                    help="simulated seconds dropped after each switch (default 1, >= fade)")
     p.add_argument("--engine", choices=("graph", "batch"), default="graph",
@@ -168,15 +173,21 @@ def _forces_ok(summary: Any) -> tuple[bool, str]:
                 for f in s.get("forces", []) if f["peak_n"] is not None), default=0.0)
     unstable = [s["mode"] for s in summary.segments if s.get("stability", {}).get("unstable")]
     text = f"actuator forces: peak {100 * peak:.1f} % of the limit, {sat} saturated samples"
+    growing = [s["mode"] for s in summary.segments
+               if s.get("stability", {}).get("growing") and s["mode"] not in unstable]
     if unstable:
         text += f"; UNSTABLE: the velocity envelope grows in {', '.join(unstable)}"
+    if growing:
+        text += (f"; a velocity envelope grows in {', '.join(growing)} while the model is "
+                 "stable (a slow transient; see report.md)")
     return sat == 0 and not unstable, text
 
 
 def _verdict_3d(summary: Any, model: Table4) -> bool:
     """X / Y / Z beside the paper's Table 4 and the model's prediction of this run (the value a
     long run converges to); reproduced when every axis sorts the four controlled modes as the
-    paper does, nothing saturated and nothing grew."""
+    paper does (a swap of modes the model predicts within :data:`CLOSE_RATIO` is named, not
+    failed), nothing saturated and nothing grew."""
     ours = {s["mode"]: s["axes"] for s in summary.segments}
     axes = [a for a in ("x", "y", "z") if a in summary.axes]
     print(f"{'mode':<10}" + "".join(f"{a.upper() + ' paper':>9}{'model':>7}{'ours':>7}"
@@ -191,10 +202,19 @@ def _verdict_3d(summary: Any, model: Table4) -> bool:
     for a in axes:
         have = [m for m in paper_order(a) if _val(ours, m, a) is not None]
         got = sorted(have, key=lambda m: -float(_val(ours, m, a) or 0.0))
-        same = got == have and len(have) >= 2
-        ok &= same
-        print(f"order in {a.upper()} {' > '.join(have)} (paper's): "
-              f"{'reproduced' if same else 'NOT reproduced, ours ' + ' > '.join(got)}"
+        swaps = [(hi, lo) for i, hi in enumerate(have) for lo in have[i + 1:]
+                 if float(_val(ours, hi, a) or 0.0) < float(_val(ours, lo, a) or 0.0)]
+        close = [(hi, lo) for hi, lo in swaps
+                 if model.values[hi][a] < CLOSE_RATIO * model.values[lo][a]]
+        same = len(have) >= 2 and not swaps
+        fine = len(have) >= 2 and len(close) == len(swaps)
+        ok &= fine
+        verdict = ("reproduced" if same else
+                   f"reproduced within the scatter, ours {' > '.join(got)}: "
+                   + ", ".join(f"{hi} / {lo} predicted {model.values[hi][a]:.3f} / "
+                               f"{model.values[lo][a]:.3f}" for hi, lo in close)
+                   if fine else f"NOT reproduced, ours {' > '.join(got)}")
+        print(f"order in {a.upper()} {' > '.join(have)} (paper's): {verdict}"
               + (f" (not run: {', '.join(skipped)})" if skipped else ""))
     if summary.paper:
         print(f"within +-30 % of the paper: {within(summary.paper)} of {len(summary.paper)}")
@@ -212,4 +232,5 @@ def _num(x: Any) -> str:
     return "-" if x is None else f"{float(x):.3f}"
 
 
-__all__ = ["BATCH_SEGMENT_S", "DEFAULT_CONFIG", "GRAPH_SEGMENT_S", "paper_order", "register", "run"]
+__all__ = ["BATCH_SEGMENT_S", "DEFAULT_CONFIG", "GRAPH_SEGMENT_S", "paper_order", "register",
+           "run"]
