@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 from dcsms_ros.analysis.predict import predict_table4
-from dcsms_ros.cli import main
+from dcsms_ros.cli import demo, main
 from dcsms_ros.core.config import load_config
 from dcsms_ros.core.modes import ALL_MODES
 
@@ -72,3 +73,26 @@ def test_default_demo_is_the_papers_tem_experiment(tmp_path, capsys):
         for axis in "xyz":
             ours = seg["axes"][axis]["normalized"]
             assert abs(ours / model[seg["mode"]][axis] - 1.0) < 0.5, (seg["mode"], axis, ours)
+
+
+def _summary_from(values):
+    """A demo summary holding normalised X / Y / Z values per mode label."""
+    segs = [{"mode": m, "axes": {a: {"normalized": v[i]} for i, a in enumerate("xyz")},
+             "forces": [], "stability": {}} for m, v in values.items()]
+    return SimpleNamespace(segments=segs, axes=["x", "y", "z"], paper=None)
+
+
+def test_order_verdict_tolerates_only_swaps_the_model_cannot_resolve(capsys):
+    """A swap of X's DFBC and DFBC+FFC (model 1.3x apart) is named and passes; a swap of Z's
+    FBC and DFBC+FFC (model 14x apart) fails the verdict."""
+    model = predict_table4(load_config(TEM), ALL_MODES)
+    base = {m: [model.values[m][a] for a in "xyz"] for m in demo.ORDER}
+    close = {m: list(v) for m, v in base.items()}
+    close["DFBC"][0], close["DFBC+FFC"][0] = base["DFBC+FFC"][0], base["DFBC"][0]
+    assert demo._verdict_3d(_summary_from(close), model)
+    assert "reproduced within the scatter" in capsys.readouterr().out
+    far = {m: list(v) for m, v in base.items()}
+    far["FBC"][2], far["DFBC+FFC"][2] = base["DFBC+FFC"][2], base["FBC"][2]
+    assert not demo._verdict_3d(_summary_from(far), model)
+    assert "order in Z FBC > FBC+FFC > DFBC > DFBC+FFC (paper's): NOT reproduced" in \
+        capsys.readouterr().out
