@@ -12,6 +12,9 @@ from pathlib import Path
 
 import pytest
 
+# colcon builds the package from scratch
+pytestmark = pytest.mark.slow
+
 REPO = Path(__file__).resolve().parents[1]
 PKG = "dcsms_ros"
 VENV_BIN = Path(sys.executable).parent

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 
 from dcsms_ros import __version__
 from dcsms_ros.errors import DcsmsError
+from dcsms_ros.rosenv import keep_discovery_local
 
 #: Sub-command modules, in the order ``dcsms --help`` lists them.
 SUBCOMMANDS: tuple[str, ...] = ("model", "tune", "sim", "up", "mode", "record", "analyze",
@@ -59,7 +60,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         Ctrl-C, or what the sub-command returned.
     """
     # Any ROS participant this process starts must stay on this machine unless told otherwise.
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    keep_discovery_local()
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

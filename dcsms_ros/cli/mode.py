@@ -37,7 +37,6 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Handler: call the service(s) and print the answer."""
     mode = parse_mode(args.name) if args.name is not None else None  # ModeError -> exit 2
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     import rclpy  # imported late: `dcsms mode BAD` must fail fast, without ROS
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor

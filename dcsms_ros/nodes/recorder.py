@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import fnmatch
 import importlib
-import os
 import signal
 import sys
 import time
@@ -48,6 +47,7 @@ from rclpy.signals import SignalHandlerOptions
 from dcsms_ros.analysis.bagio import BagWriter
 from dcsms_ros.analysis.gaps import Recording, TopicStats
 from dcsms_ros.errors import BagError, DcsmsError
+from dcsms_ros.rosenv import keep_discovery_local
 
 NODE_NAME = "dcsms_recorder"
 DEFAULT_TOPICS = ("/dcsms/*",)
@@ -304,7 +304,7 @@ def record(out: str, topics: Sequence[str] | None = None, storage: str | None = 
     BagError
         The bag cannot be created or finished.
     """
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    keep_discovery_local()
     stop = _Stop()
     old = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     context = rclpy.Context()
