@@ -305,7 +305,9 @@ def composed_rows(smoke: bool, tmp: Path, base: int) -> list[Row]:
 
 
 def _demo_row(smoke: bool, tmp: Path) -> Row:
-    """`dcsms demo --composed --rt-priority 50` (what `make demo` runs), wall time."""
+    """`dcsms demo --composed --rt-priority 50` (what `make demo` runs), wall time. Since the
+    demo runs the paper's TEM experiment (150 s simulated) the target is 5 min; the 90 s of
+    the composed-graph issue was for the 1-DOF demo of 78 s simulated."""
     import subprocess
 
     out = Path(tempfile.mkdtemp(prefix="demo-", dir=tmp)) / "demo"
@@ -318,7 +320,7 @@ def _demo_row(smoke: bool, tmp: Path) -> Row:
     wall = time.perf_counter() - t0
     tail = [ln for ln in proc.stdout.splitlines() if "simulated and recorded" in ln]
     return {"name": "demo: `dcsms demo --composed --rt-priority 50` (make demo), end to end",
-            "value": wall, "unit": "s", "target_max": 90.0,
+            "value": wall, "unit": "s", "target_max": 300.0,
             "note": f"exit {proc.returncode}; {tail[-1] if tail else proc.stderr[-300:]}"}
 
 

@@ -165,6 +165,8 @@ class GraphMonitor:
         trip = "  TRIPPED" if ms.get("tripped") == "True" else ""
         degraded = self.messages.get(PLANT, "")
         extra = f"  [{degraded}]" if degraded.startswith("degraded") else ""
+        if p.get("finished") == "True":  # the plant waits for its readers (the recorder)
+            extra += "  finished; delivering the last samples"
         return (f"t={float(p.get('sim_time_s', 0.0)):9.3f} s  "
                 f"rate={float(p.get('achieved_rate_hz', 0.0)):7.1f} Hz  "
                 f"mode={self.mode or '?'}  faults={faults}  "
