@@ -11,6 +11,9 @@ from synth_bag import write_bag
 
 from dcsms_ros.analysis.report import analyze
 
+# every test here reads bags of 20-60 s runs made by session fixtures
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:

@@ -20,6 +20,9 @@ from dcsms_ros.core.engine import SimResult, simulate
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.errors import BagError
 
+# every test here reads bags of 20-60 s runs made by session fixtures
+pytestmark = pytest.mark.slow
+
 CFG = load_config(default_config_path())
 
 

@@ -21,6 +21,9 @@ from dcsms_ros.core.engine import simulate
 from dcsms_ros.core.excitation import excitation_signal, parse_spec
 from dcsms_ros.core.modes import Mode
 
+# every test here reads bags of 20-60 s runs made by session fixtures
+pytestmark = pytest.mark.slow
+
 CFG = load_config(default_config_path())
 PRESET = {"m1": 988.8, "m2": 748.8, "k1": 1.2e6, "k2": 1.2e6, "c1": 1960.0, "c2": 1960.0}
 

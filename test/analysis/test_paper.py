@@ -28,6 +28,7 @@ def test_comparison_rows_and_count():
     assert set(TABLE4) == {"Passive", "FBC", "FBC+FFC", "DFBC", "DFBC+FFC"}
 
 
+@pytest.mark.slow
 def test_tem_bag_report_has_the_paper_section(tmp_path):
     """A 6-DOF bag: summary and report.md hold the paper, ours and the ratio per axis."""
     cfg = load_config(ROOT / "config" / "tem_three_point.yaml")
@@ -49,6 +50,7 @@ def test_tem_bag_report_has_the_paper_section(tmp_path):
     assert len(doc["paper_comparison"]) == 3
 
 
+@pytest.mark.slow
 def test_paper_flag_on_a_1dof_bag(tmp_path, capsys):
     """--paper compares a 1-DOF bag in Z; without it, no comparison."""
     cfg = load_config(ROOT / "config" / "table1.yaml")

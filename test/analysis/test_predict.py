@@ -20,6 +20,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SEGMENT_S = 600.0
 
 
+@pytest.mark.slow
 def test_predicted_table4_matches_the_analysis_of_batch_runs():
     """Table 1, every mode: model table4 within 10 % of the analysis definition applied to the
     measured (decoupled) top-stage velocity of a 600 s batch run per mode, as `dcsms analyze`

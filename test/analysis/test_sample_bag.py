@@ -4,12 +4,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from dcsms_ros.analysis.report import analyze
 from dcsms_ros.cli import main
 
 SAMPLE = Path(__file__).resolve().parents[2] / "bags" / "sample"
 
 
+@pytest.mark.slow
 def test_sample_bag_gives_the_passive_and_dfbc_ffc_rows(tmp_path):
     """Two segments, the recorded configuration, DFBC+FFC at or below 0.1 of Passive in Z."""
     summary = analyze([SAMPLE], out_dir=tmp_path)
@@ -21,6 +24,7 @@ def test_sample_bag_gives_the_passive_and_dfbc_ffc_rows(tmp_path):
     assert (tmp_path / "report.md").exists()
 
 
+@pytest.mark.slow
 def test_readme_command_on_the_sample_bag(tmp_path, capsys):
     """`dcsms analyze bags/sample --json` exits 0 with the mode table in JSON."""
     assert main(["analyze", str(SAMPLE), "--out", str(tmp_path), "--json"]) == 0

@@ -32,6 +32,7 @@ def test_steady_modes_are_not_called_unstable(mode):
         assert abs(env.factor - 1.0) < 0.5
 
 
+@pytest.mark.slow
 def test_growing_envelope_is_reported_unstable(tmp_path, capsys):
     """The unstable fixture in DFBC: the analysis flags the segment (rate of the order of the
     model's growth), report.md and the warnings say so, the Passive segment stays steady."""
@@ -59,6 +60,7 @@ def test_growing_envelope_is_reported_unstable(tmp_path, capsys):
     assert status == 0 and "UNSTABLE" in got.out, got.err
 
 
+@pytest.mark.slow
 def test_demo_verdict_fails_on_an_unstable_mode(tmp_path, capsys):
     """`dcsms demo --engine batch` on the fixture: the verdict names DFBC unstable, exit 1."""
     status = main(["demo", "--engine", "batch", "--config", str(FIXTURE), "--modes",
@@ -83,6 +85,7 @@ def test_build_up_from_rest_is_not_growth():
     assert unstable.growing and unstable.rate_per_s == pytest.approx(0.3, rel=0.05)
 
 
+@pytest.mark.slow
 def test_growth_the_stable_model_explains_is_not_called_unstable(tmp_path):
     """The Table-4 fit of the TEM, FBC switched on 1 s after a start from rest: its slow poles
     (sensor extension near 0.02 Hz, ~11 s) make the stage-1 y envelope grow ~10x over the 12 s

@@ -63,6 +63,7 @@ def test_a_trip_on_a_block_edge_is_written_once(tmp_path: Path) -> None:
     assert _messages(tmp_path / "s") == _messages(tmp_path / "ref")
 
 
+@pytest.mark.slow
 def test_every_reader_sees_the_same_counts(tmp_path: Path) -> None:
     """rosbags, the mcap library (decoding every message with mcap_ros2) and our chunk reader
     agree with the writer's counts; chunks are zstd with message indexes and a summary."""

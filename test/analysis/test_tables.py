@@ -16,6 +16,9 @@ from scipy import signal
 
 from dcsms_ros.cli import main
 
+# every test here reads bags of 20-60 s runs made by session fixtures
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def decoded(closed_loop_bag: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:

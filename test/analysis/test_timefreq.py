@@ -63,6 +63,7 @@ def test_parse_bands_refuses(text: str, message: str) -> None:
         timefreq.parse_bands(text)
 
 
+@pytest.mark.slow
 def test_report_has_spectrogram_and_blrms(closed_loop_bag: Path, tmp_path: Path) -> None:
     """The report carries the spectrogram and the BLRMS trends of the whole bag, with the mode
     switch marked at 20 s and the excited span; every segment has its band RMS."""

@@ -6,6 +6,8 @@ import json
 from pathlib import Path
 from types import SimpleNamespace
 
+import pytest
+
 from dcsms_ros.analysis.predict import predict_table4
 from dcsms_ros.cli import demo, main
 from dcsms_ros.core.config import load_config
@@ -15,6 +17,7 @@ TABLE1 = Path(__file__).resolve().parents[2] / "config" / "table1.yaml"
 TEM = TABLE1.parent / "tem_paper_fit.yaml"
 
 
+@pytest.mark.slow
 def test_batch_demo_reproduces_the_paper_ordering(tmp_path, capsys):
     """Six modes, recorded and analysed: Z ordering as Table 4, DFBC+FFC <= 0.1, no saturation."""
     out = tmp_path / "demo"
@@ -44,6 +47,7 @@ def test_demo_refuses_to_replace_a_foreign_directory(tmp_path, capsys):
     assert (out / "notes.txt").read_text() == "keep me"
 
 
+@pytest.mark.slow
 def test_demo_with_a_mode_subset_is_judged_on_the_modes_it_ran(tmp_path, capsys):
     """--modes Passive,DFBC+FFC: exit 0, the ordering of those two, the skipped ones named."""
     out = tmp_path / "sub"
@@ -53,6 +57,7 @@ def test_demo_with_a_mode_subset_is_judged_on_the_modes_it_ran(tmp_path, capsys)
     assert "Passive > DFBC+FFC: reproduced (not run: FBC, FBC+FFC, DFBC)" in text
 
 
+@pytest.mark.slow
 def test_default_demo_is_the_papers_tem_experiment(tmp_path, capsys):
     """No --config: the three-point TEM in X / Y / Z, 60 s per mode with the batch engine. Every
     axis keeps the paper's order, nothing saturates, and each normalised value lies within
@@ -82,6 +87,7 @@ def _summary_from(values):
     return SimpleNamespace(segments=segs, axes=["x", "y", "z"], paper=None)
 
 
+@pytest.mark.slow
 def test_order_verdict_tolerates_only_swaps_the_model_cannot_resolve(capsys):
     """A swap of X's DFBC and DFBC+FFC (model 1.3x apart) is named and passes; a swap of Z's
     FBC and DFBC+FFC (model 14x apart) fails the verdict."""

@@ -24,6 +24,7 @@ def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
     return status, out, err
 
 
+@pytest.mark.slow
 def test_check_refuses_the_unstable_fixture(capsys):
     """Exit 1, naming DFBC and DFBC+FFC as unstable with their pole; the other modes pass."""
     status, out, err = run(capsys, "model", "check", "--config", str(FIXTURE))
@@ -39,6 +40,7 @@ def test_check_refuses_the_unstable_fixture(capsys):
 
 
 @pytest.mark.parametrize("preset", PRESETS, ids=lambda p: p.name)
+@pytest.mark.slow
 def test_check_passes_every_shipped_preset(capsys, preset):
     """Every shipped preset is stable in all six modes with >= 6 dB / 30 deg and unsaturated."""
     status, out, _ = run(capsys, "model", "check", "--config", str(preset), "--json")
@@ -93,6 +95,7 @@ def test_eig_ideal_keeps_the_papers_eq9(capsys):
     assert plant == [[pytest.approx(a, abs=1e-9) for a in x] for x in got]
 
 
+@pytest.mark.slow
 def test_table4_json_shape(capsys):
     """table4 --json is exactly {reference, resonance_hz, modes}; the paper's Z ordering."""
     status, out, _ = run(capsys, "model", "table4", "--json")

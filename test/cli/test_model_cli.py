@@ -168,6 +168,7 @@ def test_keyboard_interrupt_exits_130(capsys: pytest.CaptureFixture[str],
     assert status == 130 and err == ""
 
 
+@pytest.mark.slow
 def test_installed_console_script(tmp_path: Path) -> None:
     """The installed ``dcsms`` console script runs eig --ideal --json from any directory."""
     exe = Path(sys.executable).parent / "dcsms"

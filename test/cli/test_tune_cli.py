@@ -49,6 +49,7 @@ def test_existing_output_is_never_overwritten(tmp_path, capsys):
     assert out.read_text() == "keep"
 
 
+@pytest.mark.slow
 def test_impossible_forces_exit_1_and_write_nothing(tmp_path, capsys):
     """1 uN actuators: even the least feedback gain (10 N s/m) on a um/s table needs more than
     a quarter of that, so no candidate is feasible."""
@@ -61,6 +62,7 @@ def test_impossible_forces_exit_1_and_write_nothing(tmp_path, capsys):
     assert not out.exists() and not list(tmp_path.glob("*.partial"))
 
 
+@pytest.mark.slow
 def test_table1_result_is_a_loadable_checked_params_file(tmp_path, capsys):
     """Attenuation on Table 1: the file loads, says how it was made, passes the check, and the
     printed table has the batch run beside the prediction."""

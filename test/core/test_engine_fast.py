@@ -64,6 +64,7 @@ def test_fast_matches_object_path(name):
     assert fast.actuator_names == slow.actuator_names
 
 
+@pytest.mark.slow
 def test_trip_latches_passive_at_a_checkpoint_and_refuses_switches():
     """The unstable gain trips at a checkpoint; Passive from the next sample; the later switch
     to FBC is refused, as the mode-switch node refuses it; a stable run never trips."""

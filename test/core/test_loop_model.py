@@ -137,6 +137,7 @@ def _welch_expected(model_psd, f: np.ndarray, fs: float, nperseg: int) -> np.nda
 @pytest.mark.parametrize(("preset", "mode"), [("table1.yaml", Mode.PASSIVE),
                                               ("table1.yaml", Mode.DFBC_FFC),
                                               ("tem_three_point.yaml", Mode.FBC_FFC)])
+@pytest.mark.slow
 def test_predicted_psd_matches_batch_welch(preset, mode):
     """The PSD of each stage velocity predicted from the configured ground, table-force and
     sensor-noise spectra matches the batch engine's Welch PSD within 1 dB over 1-100 Hz,

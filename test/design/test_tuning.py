@@ -54,6 +54,7 @@ def test_judge_of_a_preset_matches_the_check_and_the_prediction():
     assert ev.objective == pytest.approx(math.log(ev.table["DFBC+FFC"]["z"]), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_attenuation_search_improves_and_keeps_every_constraint():
     """From Table 1's gains, 40 evaluations lower DFBC+FFC; the result passes the full check."""
     cfg = load_config(TABLE1)
@@ -69,6 +70,7 @@ def test_attenuation_search_improves_and_keeps_every_constraint():
         math.exp(result.evaluation.objective), rel=0.01)
 
 
+@pytest.mark.slow
 def test_table4_search_moves_towards_the_target():
     """A target 1.6x Table 1's FBC and DFBC values in Z: the squared log error shrinks."""
     cfg = load_config(TABLE1)
