@@ -44,6 +44,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--order", default="", metavar="AXES",
                    help="axes (e.g. x,z) on which the paper's order FBC > FBC+FFC > DFBC > "
                    "DFBC+FFC must hold, each at least 1.15 x the next")
+    p.add_argument("--order-gap", type=float, default=1.15, metavar="RATIO",
+                   help="with --order: least ratio between neighbours (default 1.15; a run's "
+                   "scatter needs more the shorter it is)")
     p.add_argument("--corners", action="store_true",
                    help="also tune the feedback high-pass and sensor extension corners")
     p.add_argument("--corner-min", type=float, default=0.02, metavar="HZ",
@@ -120,9 +123,15 @@ def run(args: argparse.Namespace) -> int:
     knobs = default_knobs(cfg, corners=args.corners, rotations=args.rotations,
                           corner_min_hz=args.corner_min)
     order = [a.strip() for a in args.order.split(",") if a.strip()]
-    problem = Problem(cfg, knobs, args.objective, target, args.min_gm, args.min_pm, order)
+    if not args.order_gap >= 1.0:
+        raise DcsmsError("--order-gap must be >= 1")
+    problem = Problem(cfg, knobs, args.objective, target, args.min_gm, args.min_pm, order,
+                      args.order_gap)
     say = (lambda *a: print(*a, file=sys.stderr, flush=True)) if args.json else (
         lambda *a: print(*a, flush=True))
+    for k, value, used in problem.clipped():
+        say(f"dcsms tune: {k.label} = {value:.4g} is outside the searched range "
+            f"[{k.lo:g}, {k.hi:g}]; the search starts from {used:.4g}")
     start = problem.evaluate(problem.start())
     say(f"dcsms tune: {len(knobs)} knobs ({', '.join(k.label for k in knobs)}), objective "
         f"{args.objective}; start {'feasible' if start.feasible else 'INFEASIBLE'}: "

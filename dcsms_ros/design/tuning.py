@@ -178,13 +178,15 @@ class Problem:
     min_gm_db, min_pm_deg : float
         Minimum margins (dB, deg).
     order : sequence of str
-        Axes on which the paper's mode order must hold (:data:`ORDER`, :data:`ORDER_GAP`).
+        Axes on which the paper's mode order must hold (:data:`ORDER`).
+    order_gap : float
+        Least ratio between neighbours in that order (default :data:`ORDER_GAP`).
     """
 
     def __init__(self, cfg: SystemConfig, knobs: Sequence[Knob], objective: str,
                  target: Mapping[str, Mapping[str, float]] | None = None,
                  min_gm_db: float = MIN_GM_DB, min_pm_deg: float = MIN_PM_DEG,
-                 order: Sequence[str] = ()) -> None:
+                 order: Sequence[str] = (), order_gap: float = ORDER_GAP) -> None:
         if objective not in OBJECTIVES:
             raise DcsmsError(f"objective {objective!r}: expected one of {', '.join(OBJECTIVES)}")
         if objective == "table4" and not target:
@@ -201,13 +203,26 @@ class Problem:
         if bad:
             raise DcsmsError(f"order axes {', '.join(bad)}: the table has {', '.join(self.axes)}")
         self.order = list(order)
+        if not order_gap >= 1.0:
+            raise DcsmsError(f"order gap {order_gap}: must be >= 1")
+        self.order_gap = order_gap
         self.rows = (["DFBC+FFC"] if objective == "attenuation" else list(self.target))
         if self.order:
             self.rows = list(dict.fromkeys([*self.rows, *ORDER]))
 
     def start(self) -> Array:
-        """The starting configuration's knob values in unit coordinates."""
+        """The starting configuration's knob values in unit coordinates (clipped to the knobs'
+        ranges: :meth:`clipped` says which)."""
         return np.array([k.to_unit(_get(self.cfg, k)) for k in self.knobs])
+
+    def clipped(self) -> list[tuple[Knob, float, float]]:
+        """Knobs whose starting value lies outside their range: (knob, value, where it starts)."""
+        out = []
+        for k in self.knobs:
+            v = _get(self.cfg, k)
+            if not k.lo <= v <= k.hi:
+                out.append((k, v, k.from_unit(k.to_unit(v))))
+        return out
 
     def config(self, u: Sequence[float] | Array) -> SystemConfig:
         """The configuration at unit coordinates ``u``."""
@@ -221,13 +236,14 @@ class Problem:
             self.evaluations += 1
             self._cache[key] = judge(self.config(key), self.axes, self.rows, self.objective,
                                      self.target, self.min_gm, self.min_pm, self.grid,
-                                     self.order)
+                                     self.order, self.order_gap)
         return self._cache[key]
 
 
 def judge(cfg: SystemConfig, axes: Sequence[str], rows: Sequence[str], objective: str,
           target: Mapping[str, Mapping[str, float]], min_gm: float, min_pm: float,
-          grid: Array | None = None, order: Sequence[str] = ()) -> Evaluation:
+          grid: Array | None = None, order: Sequence[str] = (),
+          order_gap: float = ORDER_GAP) -> Evaluation:
     """Objective, constraint slacks and predicted Table-4 rows of one configuration."""
     slack_stab, gms, pms = math.inf, [math.inf], [math.inf]
     for mode in _loop_sets(cfg).values():
@@ -258,7 +274,7 @@ def judge(cfg: SystemConfig, axes: Sequence[str], rows: Sequence[str], objective
         table[label] = {a: float(band_rms(top, f_r[a], TUNE_BAND_POINTS)[j]) / base[a]
                         for j, a in enumerate(axes)}
     for a in order:
-        slacks[f"order {a}"] = min(math.log(table[hi][a] / table[lo][a]) - math.log(ORDER_GAP)
+        slacks[f"order {a}"] = min(math.log(table[hi][a] / table[lo][a]) - math.log(order_gap)
                                    for hi, lo in itertools.pairwise(ORDER))
     if objective == "attenuation":
         logs = np.array([math.log(table["DFBC+FFC"][a]) for a in axes])

@@ -95,3 +95,13 @@ def test_order_constraint_is_a_slack_per_axis():
     rows = [ev.table[m]["z"] for m in ("FBC", "FBC+FFC", "DFBC", "DFBC+FFC")]
     expect = min(np.log(np.array(rows[:-1]) / np.array(rows[1:]))) - math.log(1.15)
     assert ev.slacks["order z"] == pytest.approx(expect, rel=1e-9)
+
+
+def test_a_start_outside_the_range_is_reported():
+    """The TEM preset's 0.032 / 0.035 Hz high-pass corners lie below --corner-min 0.05: the
+    problem names both and starts them at 0.05 Hz."""
+    cfg = load_config(ROOT / "config" / "tem_three_point.yaml")
+    problem = Problem(cfg, default_knobs(cfg, corners=True, corner_min_hz=0.05), "attenuation")
+    got = {k.label: (v, used) for k, v, used in problem.clipped()}
+    assert got == {"feedback.stage1.highpass_hz": (pytest.approx(0.032), pytest.approx(0.05)),
+                   "feedback.stage2.highpass_hz": (pytest.approx(0.035), pytest.approx(0.05))}
