@@ -73,7 +73,7 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     plant steps."""
     from dcsms_ros.core.config import load_config
     from dcsms_ros.core.modes import Mode
-    from dcsms_ros.graph import define_graph
+    from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, define_graph
     from dcsms_ros.nodes import deploy
 
     cfg = load_config(config)
@@ -90,7 +90,7 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     rec: list[deploy.Child] = []
     if record == "process":
         rec = [deploy.Child("recorder", deploy.recorder_command(bag, recorded) + [
-            "--queue-depth", str(deploy.LOCKSTEP_WRITER_DEPTH)])]
+            "--queue-depth", str(LOCKSTEP_WRITER_DEPTH)])]
     if composed:
         kids = [deploy.composed_child(graph_file, params, rt_priority,
                                       [str(bag), *recorded] if record == "composed" else ())]

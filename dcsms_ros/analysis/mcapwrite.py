@@ -151,7 +151,7 @@ class McapBagWriter:
         self.chunk_bytes = chunk_bytes
         self._zstd: Any = None
         if compress:
-            import zstandard
+            import zstandard  # noqa: PLC0415 - optional: only for compressed chunks
 
             self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
         self.topics: dict[str, _Topic] = {}

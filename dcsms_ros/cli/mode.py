@@ -38,14 +38,14 @@ def run(args: argparse.Namespace) -> int:
     """Handler: call the service(s) and print the answer."""
     mode = parse_mode(args.name) if args.name is not None else None  # ModeError -> exit 2
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    import rclpy  # imported late: `dcsms mode BAD` must fail fast, without ROS
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
-    from std_msgs.msg import String
-    from std_srvs.srv import Trigger
+    import rclpy  # noqa: PLC0415 - deferred: ROS
+    from rclpy.context import Context  # noqa: PLC0415 - deferred: ROS
+    from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415 - deferred: ROS
+    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415 - deferred: ROS
+    from std_msgs.msg import String  # noqa: PLC0415 - deferred: ROS
+    from std_srvs.srv import Trigger  # noqa: PLC0415 - deferred: ROS
 
-    from dcsms_ros.nodes import qos
+    from dcsms_ros.nodes import qos  # noqa: PLC0415 - deferred: ROS
 
     ctx = Context()
     rclpy.init(args=[], context=ctx, signal_handler_options=SignalHandlerOptions.NO)

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from dcsms_ros.core import analytics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import Allocator
 from dcsms_ros.core.loop_model import loop_model, pole_parts, poles, s_plane
@@ -75,6 +76,20 @@ def loop_poles(cfg: SystemConfig, mode: Mode) -> list[Pole]:
     s = s_plane(z, m.fs) / (2.0 * math.pi)
     order = np.argsort(-np.abs(z), kind="stable")
     return [Pole(complex(s[i]), complex(z[i]), parts[i]) for i in order]
+
+
+def ideal_poles(cfg: SystemConfig, mode: Mode) -> list[Pole]:
+    """Every pole of ``mode`` on the paper's continuous model (ideal sensors, continuous
+    controllers), largest real part first."""
+    lam = analytics.eigenvalues(cfg, mode) / (2.0 * math.pi)
+    return [Pole(complex(x), complex(math.nan, math.nan), "")
+            for x in sorted(lam, key=lambda x: -x.real)]
+
+
+def oscillatory(poles: list[Pole]) -> list[Pole]:
+    """One entry per complex pair (positive imaginary part), lowest frequency first."""
+    out = [p for p in poles if p.s_hz.imag > 1e-9 * max(abs(p.s_hz), 1.0)]
+    return sorted(out, key=lambda p: p.frequency_hz)
 
 
 def stability(cfg: SystemConfig, mode: Mode) -> Stability:
@@ -170,5 +185,5 @@ def unstable_reason(cfg: SystemConfig, mode: Mode) -> str | None:
 
 
 __all__ = ["MIN_GM_DB", "MIN_PM_DEG", "PEAK_FACTOR", "ModeCheck", "Pole", "Stability",
-           "actuator_limits", "check_config", "check_mode", "loop_poles", "stability",
-           "unstable_reason"]
+           "actuator_limits", "check_config", "check_mode", "ideal_poles", "loop_poles",
+           "oscillatory", "stability", "unstable_reason"]
