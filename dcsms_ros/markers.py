@@ -1,4 +1,4 @@
-"""Generated blocks in text files: the README's parameter, benchmark and reliability tables."""
+"""Generated blocks in text files: the parameter, benchmark and reliability tables in docs/."""
 
 from __future__ import annotations
 

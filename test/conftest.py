@@ -1,5 +1,14 @@
-"""Fixtures shared by the ROS tests: a private ROS domain per test, private rclpy contexts and
-the Table 1 preset."""
+"""Markers and fixtures shared by every test: a private ROS domain per test, private rclpy
+contexts and the Table 1 preset.
+
+Markers (``pytest -m unit`` runs in seconds without DDS; ``make test`` runs everything):
+
+- ``ros``: starts ROS participants (uses the ``domain`` fixture, or lives in ``test/nodes`` or
+  ``test/reliability``);
+- ``reliability``: the fault-injection suite (``test/reliability``);
+- ``slow``: takes more than a few seconds (a module's ``pytestmark``, or a test's mark);
+- ``unit``: everything else. rclpy is imported only by the tests that use it.
+"""
 
 from __future__ import annotations
 
@@ -7,17 +16,47 @@ import os
 import random
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
-import rclpy
-from rclpy.context import Context
 
 from dcsms_ros.core.config import SystemConfig, load_config
+
+if TYPE_CHECKING:
+    from rclpy.context import Context
 
 TABLE1 = Path(__file__).resolve().parents[1] / "config" / "table1.yaml"
 # Every test of one run gets a different domain (Fast DDS allows 0..232 with default ports);
 # the pid seeds the order so two runs side by side rarely pick the same ids at the same time.
 _DOMAINS = iter(random.Random(os.getpid()).sample(range(1, 230), 229))
+
+
+ROS_DIRS = ("nodes", "reliability")
+MARKERS = {
+    "unit": "fast, no DDS (everything not marked ros or slow)",
+    "ros": "starts ROS participants over real DDS in a private domain",
+    "reliability": "fault injection into the running graph (test/reliability)",
+    "slow": "takes more than a few seconds",
+}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    for name, text in MARKERS.items():
+        config.addinivalue_line("markers", f"{name}: {text}")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark every test ``ros`` / ``reliability`` by where it lives and what it uses, and
+    ``unit`` when it is neither ROS nor slow."""
+    here = Path(__file__).resolve().parent
+    for item in items:
+        parts = Path(str(item.path)).resolve().relative_to(here).parts
+        if parts[0] == "reliability":
+            item.add_marker(pytest.mark.reliability)
+        if parts[0] in ROS_DIRS or "domain" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.ros)
+        if item.get_closest_marker("ros") is None and item.get_closest_marker("slow") is None:
+            item.add_marker(pytest.mark.unit)
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -43,6 +82,9 @@ def domain(monkeypatch: pytest.MonkeyPatch) -> int:
 @pytest.fixture
 def ctx(domain: int) -> Iterator[Context]:
     """An initialised private rclpy context in this test's domain."""
+    import rclpy
+    from rclpy.context import Context
+
     c = Context()
     rclpy.init(args=[], context=c, domain_id=domain)
     yield c

@@ -8,7 +8,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
+# the smoke run starts the graph (ping-pong, lockstep) in its own domain
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 def test_bench_smoke_writes_json(tmp_path):

@@ -137,9 +137,7 @@ def parse_params(cfg: SystemConfig, text: str | None) -> list[Param]:
                  else [f"{k}{i}" for i in range(1, n + 1) for k in "mkc"])
     else:
         names = [t.strip() for t in text.split(",") if t.strip()]
-    out: list[Param] = []
-    for name in names:
-        out.append(_param(name, n, six))
+    out: list[Param] = [_param(name, n, six) for name in names]
     dup = {p.name for p in out if sum(q.name == p.name for q in out) > 1}
     if dup:
         raise DcsmsError(f"--params: {', '.join(sorted(dup))} given twice")

@@ -87,7 +87,7 @@ def _decompress(data: memoryview, compression: str, size: int) -> bytes | memory
 
         return zstandard.ZstdDecompressor().decompress(bytes(data), max_output_size=size)
     if compression == "lz4":
-        import lz4.frame  # type: ignore[import-untyped]  # noqa: PLC0415
+        import lz4.frame  # type: ignore[import-untyped]  # noqa: PLC0415 - optional, as above
 
         return bytes(lz4.frame.decompress(bytes(data)))
     raise Unsupported(f"unknown chunk compression {compression!r}")
@@ -143,7 +143,8 @@ def _block(cid: int, rec: np.ndarray, entries: np.ndarray) -> Block:
     if lengths.size and np.all(lengths == lengths[0]):
         rows = _gather(rec, start, int(lengths[0]))
         return Block(cid, t, rows=rows)
-    bufs = [rec[s:s + n].tobytes() for s, n in zip(start.tolist(), lengths.tolist())]
+    bufs = [rec[s:s + n].tobytes() for s, n in zip(start.tolist(), lengths.tolist(),
+                                                      strict=True)]
     return Block(cid, t, buffers=bufs)
 
 

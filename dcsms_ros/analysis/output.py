@@ -90,7 +90,7 @@ def markdown(summary: Summary, figures: list[str]) -> str:
              + ", ".join(f"{a}: {f:.2f} Hz" for a, f in summary.resonance_hz.items()), "",
              "## Mode table (paper Table 4)", "",
              "Top-stage velocity at the reference resonance, normalised to the reference mode.",
-             "", _md_table4(summary), "",
+             "", _md_table4(summary), "", _md_resolution(summary), "",
              "Definition: " + " ".join(summary.definition.split()), "",
              "## Vibration criteria (one-third-octave RMS velocity, 1-80 Hz)", "",
              _md_vc(summary), "", "## What each segment can estimate", "",
@@ -130,9 +130,31 @@ def _md_table4(s: Summary) -> str:
         st = seg.get("stability", {})
         grow = ", ".join(f"{g['body']} {g['axis']} grows {g['rate_per_s']:.2g} /s"
                          for g in st.get("growing", []))
-        cells.append(f"**unstable** ({grow})" if st.get("unstable") else "steady")
+        cells.append(f"**unstable** ({grow})" if st.get("unstable") else
+                     f"growing, model stable ({grow})" if grow else
+                     "steady" if st.get("checked", True) else "open loop")
         rows.append(f"| {seg['segment']} | " + " | ".join(cells) + " |")
     return "\n".join(rows)
+
+
+#: Frequency resolution (Hz) wanted at the TEM's 1.5-2.5 Hz air-mount resonances.
+WANTED_RESOLUTION_HZ = 0.125
+
+
+def _md_resolution(s: Summary) -> str:
+    """The spectral resolution the mode table had (segment length and Welch segments)."""
+    res = [seg["resolution_hz"] for seg in s.segments if seg.get("resolution_hz")]
+    if not res:
+        return ""
+    worst = max(res)
+    secs = min(seg["duration_s"] for seg in s.segments)
+    line = (f"Spectral resolution {min(res):.3g}-{worst:.3g} Hz (Welch, Hann, 50 % overlap, "
+            f">= 8 averages; the shortest segment {secs:.1f} s).")
+    if worst > WANTED_RESOLUTION_HZ:
+        line += (f" Coarser than {WANTED_RESOLUTION_HZ:g} Hz: a 1.5-2.5 Hz resonance spreads "
+                 f"over few bins; 0.125 Hz needs segments of at least 37 s (`dcsms demo "
+                 f"--segment 37`).")
+    return line
 
 
 def _md_paper(s: Summary) -> str:
@@ -195,10 +217,9 @@ def _md_forces(s: Summary) -> str:
     rows = ["| mode | channel | RMS (N) | peak (N) | limit (N) | saturated samples |",
             "|---|---|---:|---:|---:|---:|"]
     for seg in s.segments:
-        for c in seg.get("forces", []):
-            rows.append(f"| {seg['segment']} | {c['channel']} | {_fmt(c['rms_n'], '.3g')} | "
-                        f"{_fmt(c['peak_n'], '.3g')} | {_fmt(c['limit_n'], '.4g')} | "
-                        f"{c['saturated_samples']} |")
+        rows.extend(f"| {seg['segment']} | {c['channel']} | {_fmt(c['rms_n'], '.3g')} | "
+                    f"{_fmt(c['peak_n'], '.3g')} | {_fmt(c['limit_n'], '.4g')} | "
+                    f"{c['saturated_samples']} |" for c in seg.get("forces", []))
     return "\n".join(rows) if len(rows) > 2 else "No `/dcsms/actuators/applied` data."
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,7 @@ from dcsms_ros.analysis.segments import (
 )
 from dcsms_ros.analysis.stability import envelope
 from dcsms_ros.analysis.summary import Summary, dumps
+from dcsms_ros.core.check import Stability, stability
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import parse_mode
 from dcsms_ros.errors import DcsmsError
@@ -88,15 +90,15 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
             continue
         segs = split_segments(data.modes, int(ref.stamp_ns[0]), int(ref.stamp_ns[-1]),
                               settle_s)
-        for seg in split_excited(segs, data.excitation, settle_s):
-            work.append((data, seg, cfg))
+        work.extend((data, seg, cfg) for seg in split_excited(segs, data.excitation, settle_s))
     axes = _axes(work)
     summary = Summary([str(b) for b in bags], ref_mode.label, axes, warnings=warnings,
                       config_source=cfg_source, blrms_bands_hz=[list(b) for b in blrms_bands])
     results = []
     models: dict[Any, LoopFrf | None] = {}
+    verdicts: dict[Any, Stability] = {}
     for data, seg, cfg in work:
-        r = _segment(data, seg, cfg, axes, summary, models)
+        r = _segment(data, seg, cfg, axes, summary, models, verdicts)
         if r is not None:
             results.append(r)
     _table4(results, ref_mode.label, summary)
@@ -124,9 +126,10 @@ def _axes(work: list[tuple[BagData, Segment, SystemConfig | None]]) -> list[str]
 
 
 def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[str],
-             summary: Summary, models: dict[Any, LoopFrf | None]) -> dict[str, Any] | None:
-    where = f"{data.path} [{seg.label}{' excited' if seg.excited else ''} @ " \
-            f"{seg.t0_ns * 1e-9:.2f} s]"
+             summary: Summary, models: dict[Any, LoopFrf | None],
+             verdicts: dict[Any, Stability]) -> dict[str, Any] | None:
+    where = (f"{data.path} [{seg.label}{' excited' if seg.excited else ''} @ "
+             f"{seg.t0_ns * 1e-9:.2f} s]")
     if seg.duration_s < MIN_SEGMENT_S:
         summary.warnings.append(f"{where}: only {seg.duration_s:.1f} s after settling; skipped")
         return None
@@ -198,13 +201,26 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
         arrays[a] = {"f": f, "psd": p_top, "tfs": trans.tfs, "estimates": ests,
                      "psd_bodies": psds}
     js["forces"] = _forces(data, seg, cfg)
-    js["stability"] = _stability(al.bodies, stages, axes, al.fs, summary, where)
+    js["stability"] = (_stability(al.bodies, stages, axes, al.fs, summary, where,
+                                  _model_stability(cfg, seg, verdicts))
+                       if seg.mode is None or seg.mode.feedback else
+                       {"unstable": False, "growing": [], "checked": False, "model": None})
     return {"json": js, "arrays": arrays, "top": top}
 
 
 def _stability(bodies: dict[str, np.ndarray], stages: list[str], axes: list[str], fs: float,
-               summary: Summary, where: str) -> dict[str, Any]:
-    """Growing envelopes of the stage velocities (:mod:`.stability`): an unstable segment."""
+               summary: Summary, where: str, model: Stability | None) -> dict[str, Any]:
+    """Growing envelopes of the stage velocities (:mod:`.stability`), judged with the model.
+
+    Only segments with a feedback loop closed are judged: an open-loop segment cannot be
+    unstable. A growing envelope is a finding of a short record, and a stable loop with slow
+    poles makes them too: the air mounts' rocking modes (1.3 % damping at 0.53 Hz in the TEM
+    preset) or sensor-extension poles near 0.02 Hz (time constants of ~11 s) wander by 3-20x
+    within a 12-37 s segment, as often as once in 20 stage-axis records of the TEM. So a segment
+    is *unstable* when an envelope grows and the model of the recorded configuration is
+    unstable too, or no model is recorded; when the model is stable it is reported as *growing*
+    with the model's slowest time constant, and a longer record decides.
+    """
     growing: list[dict[str, Any]] = []
     for s in stages:
         for a in axes:
@@ -212,12 +228,39 @@ def _stability(bodies: dict[str, np.ndarray], stages: list[str], axes: list[str]
             if env is not None and env.growing:
                 growing.append({"body": s, "axis": a, "rate_per_s": env.rate_per_s,
                                 "factor": env.factor})
+    judged = None if model is None else {
+        "stable": model.stable, "worst_pole_hz": [model.worst_s_hz.real, model.worst_s_hz.imag],
+        "slowest_time_constant_s": (1.0 / (-2.0 * math.pi * model.worst_s_hz.real)
+                                    if model.stable and model.worst_s_hz.real < 0 else None)}
+    unstable = bool(growing) and (model is None or not model.stable)
     if growing:
         g = max(growing, key=lambda x: float(x["rate_per_s"]))
-        summary.warnings.append(f"{where}: UNSTABLE: the {g['body']} {g['axis']} velocity "
-                                f"envelope grows {g['rate_per_s']:.3g} /s (x{g['factor']:.1f} "
-                                f"over the segment)")
-    return {"unstable": bool(growing), "growing": growing}
+        grows = (f"the {g['body']} {g['axis']} velocity envelope grows {g['rate_per_s']:.3g} /s "
+                 f"(x{g['factor']:.1f} over the segment)")
+        if unstable:
+            p = None if model is None else model.worst_s_hz
+            why = "" if p is None else (f"; the model is unstable too (pole {p.real:+.4f} "
+                                        f"{p.imag:+.4f}j Hz)")
+            summary.warnings.append(f"{where}: UNSTABLE: {grows}{why}")
+        else:
+            tau = judged["slowest_time_constant_s"] if judged else None
+            slow = f" (slowest time constant {tau:.3g} s)" if tau else ""
+            summary.warnings.append(
+                f"{where}: growing: {grows}, but the model of the recorded configuration is "
+                f"stable{slow}: a slow transient or a lightly damped mode; a longer record "
+                "decides")
+    return {"unstable": unstable, "growing": growing, "checked": True, "model": judged}
+
+
+def _model_stability(cfg: SystemConfig | None, seg: Segment,
+                     verdicts: dict[Any, Stability]) -> Stability | None:
+    """The loop model's verdict on the segment's mode (cached per configuration and mode)."""
+    if cfg is None or seg.mode is None:
+        return None
+    key = (id(cfg), seg.mode)
+    if key not in verdicts:
+        verdicts[key] = stability(cfg, seg.mode)
+    return verdicts[key]
 
 
 def _timefreq(work: list[tuple[BagData, Segment, SystemConfig | None]], axes: list[str],

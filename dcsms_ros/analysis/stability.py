@@ -5,12 +5,17 @@ of log RMS against time (least squares), and the growth over the segment the rat
 in its last quarter to its first. A stationary record, even a narrow-band one, keeps those
 ratios near 1 (a quarter of a 12 s segment holds a few hundred cycles at the table modes); an
 unstable loop multiplies them. The segment is called unstable when the RMS of every quarter is
-above the one before and the last quarter's is at least :data:`GROWTH_FACTOR` times the first's.
+above the one before, the last quarter's is at least :data:`GROWTH_FACTOR` times the first's,
+and the growth does not slow down: the last quarter-to-quarter step in ln RMS is at least
+:data:`KEEPS_GROWING` of the first. An exponential keeps (or, out of the noise floor, gains)
+its pace; a build-up towards a new stationary level after a switch, or from rest at the start
+of a run, loses it (a lightly damped 0.5 Hz mode of a TEM takes ~20 s to settle).
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +25,8 @@ from numpy.typing import NDArray
 GROWTH_FACTOR = 3.0
 #: Window of the envelope's RMS, s (at most a sixteenth of the record).
 WINDOW_S = 0.5
+#: Last over first quarter-to-quarter growth step (ln RMS) that still counts as exponential.
+KEEPS_GROWING = 0.7
 
 
 @dataclass(frozen=True)
@@ -47,8 +54,10 @@ def envelope(x: NDArray[np.floating], fs: float) -> Envelope | None:
     rate = float(np.polyfit(t, np.log(r), 1)[0])
     q = [float(np.sqrt(np.mean(c ** 2))) for c in np.array_split(r, 4)]
     factor = q[-1] / q[0]
-    growing = all(b > a for a, b in itertools.pairwise(q)) and factor >= GROWTH_FACTOR
+    steps = [math.log(b / a) for a, b in itertools.pairwise(q)]
+    growing = (all(d > 0 for d in steps) and factor >= GROWTH_FACTOR
+               and steps[-1] >= KEEPS_GROWING * steps[0])
     return Envelope(rate, factor, growing)
 
 
-__all__ = ["GROWTH_FACTOR", "WINDOW_S", "Envelope", "envelope"]
+__all__ = ["GROWTH_FACTOR", "KEEPS_GROWING", "WINDOW_S", "Envelope", "envelope"]

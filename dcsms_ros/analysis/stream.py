@@ -243,8 +243,8 @@ class _Writer:
             buf = tpl.encode(t_ns)
             for lay, v, o in zip(self.lay, _values(res, self.clock, self.exc_stage),
                                  tpl.offsets, strict=True):
-                o += MESSAGE_HEADER
-                encode_rows(lay, t_ns, v, buf[:, o:o + lay.template.size])
+                start = o + MESSAGE_HEADER
+                encode_rows(lay, t_ns, v, buf[:, start:start + lay.template.size])
             rows = [buf]
         else:
             rows = [encode_rows(lay, t_ns, v) for lay, v in zip(

@@ -8,7 +8,7 @@ Building the parser imports every sub-command module, so ``dcsms --help`` pays f
 module-level imports. A handler therefore imports the heavy APIs it calls (the analysis, the
 batch engine, python-control, matplotlib, rclpy) when it runs; each such import is marked
 ``# noqa: PLC0415 - deferred ...`` (ruff's import-outside-top-level). None of them hides an
-import cycle: ``test/test_imports.py`` checks the package's import graph, function-local
+import cycle: ``test/test_structure.py`` checks the package's import graph, function-local
 imports included.
 """
 
@@ -22,6 +22,7 @@ from collections.abc import Sequence
 
 from dcsms_ros import __version__
 from dcsms_ros.errors import DcsmsError
+from dcsms_ros.rosenv import keep_discovery_local
 
 #: Sub-command modules, in the order ``dcsms --help`` lists them.
 SUBCOMMANDS: tuple[str, ...] = ("model", "tune", "sim", "up", "mode", "record", "analyze",
@@ -66,7 +67,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         Ctrl-C, or what the sub-command returned.
     """
     # Any ROS participant this process starts must stay on this machine unless told otherwise.
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    keep_discovery_local()
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

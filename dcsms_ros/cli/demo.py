@@ -1,9 +1,11 @@
-"""``dcsms demo``: the main job in one command.
+"""``dcsms demo``: the main job in one command, the paper's experiment by default.
 
 Starts the node graph in lockstep with recording (``--composed``: every node in one process,
 as ``make demo`` runs it), cycles the paper's six control modes through the mode-switch services
 (each switch lands on its scheduled sample, so the run equals the batch engine's), analyses the
-bag and prints the paper's Table 4 with a verdict on the ordering in Z. ``--engine batch`` does
+bag and prints the mode table beside the paper's Table 4 with a verdict. The default
+configuration is the three-point TEM fitted to Table 4 (``config/tem_paper_fit.yaml``, X / Y /
+Z); ``--config config/table1.yaml`` runs the 1-DOF Table-1 model (Z). ``--engine batch`` does
 the same without ROS (the streaming batch engine with the same mode schedule).
 """
 
@@ -16,15 +18,29 @@ from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
-from dcsms_ros.cli.common import add_config_options, load_cfg, print_model_check
+from dcsms_ros.analysis.paper import TABLE4, within
+from dcsms_ros.analysis.predict import Table4, predict_table4
+from dcsms_ros.cli.common import add_config_options, find_share_file, load_cfg, print_model_check
 from dcsms_ros.cli.up import add_deploy_options, build_graph, check_deploy_options, launch
 from dcsms_ros.core.modes import ALL_MODES, Mode, parse_mode
 from dcsms_ros.errors import DcsmsError
 
 #: The paper's Table 4 order; FFC alone is not in the table, so it is not part of the verdict.
 ORDER = ("Passive", "FBC", "FBC+FFC", "DFBC", "DFBC+FFC")
-#: Done-when bar of the demo: DFBC+FFC at or below this fraction of Passive in Z.
+#: Done-when bar of the 1-DOF demo: DFBC+FFC at or below this fraction of Passive in Z.
 BEST_MAX = 0.1
+#: The demo's default configuration: the paper's experiment.
+DEFAULT_CONFIG = "config/tem_paper_fit.yaml"
+#: Default seconds analysed per mode. The TEM's Table-4 values scatter with the segment length
+#: (docs/tem.md): with 12 s the paper's order flipped in 2 of 3 seeds, with 24 s and 30 s in
+#: none of 3 (X's DFBC and DFBC+FFC, predicted only 1.3x apart, can still swap by chance). The
+#: graph runs near real time, so 24 s (~4 min); the batch engine affords 60 s.
+GRAPH_SEGMENT_S = 24.0
+BATCH_SEGMENT_S = 60.0
+#: A swap of two modes the model predicts closer than this ratio is within the scatter of a
+#: demo-length segment (X's FBC / FBC+FFC and DFBC / DFBC+FFC are 1.2x and 1.3x apart; with 24-37 s
+#: segments single values scatter by +-30 %), so it does not fail the verdict; it is named.
+CLOSE_RATIO = 1.5
 #: Marker that lets a new demo replace the output of an earlier one (and nothing else).
 MARKER = ".dcsms-demo"
 
@@ -37,11 +53,13 @@ def register(subparsers: Any) -> None:
         "control modes, analyse the bag and print the paper's Table 4 (normalised stage-2 "
         "velocity at the Passive resonance).")
     add_config_options(p)
+    p.set_defaults(config=None)
     p.add_argument("--out", type=Path, default=Path("out/demo"), metavar="DIR",
                    help="output directory: bag/, report.md, PNGs, summary.json (default "
                    "out/demo; an earlier demo there is replaced)")
-    p.add_argument("--segment", type=float, default=12.0, metavar="S",
-                   help="simulated seconds analysed per mode (default 12)")
+    p.add_argument("--segment", type=float, default=None, metavar="S",
+                   help="simulated seconds analysed per mode (default 24 with the graph, "
+                   f"{BATCH_SEGMENT_S:g} with the batch engine; shorter segments scatter)")
     p.add_argument("--settle", type=float, default=1.0, metavar="S",
                    help="simulated seconds dropped after each switch (default 1, >= fade)")
     p.add_argument("--engine", choices=("graph", "batch"), default="graph",
@@ -57,9 +75,13 @@ def run(args: argparse.Namespace) -> int:
     modes = [parse_mode(m) for m in args.modes.split(",") if m.strip()]
     if not modes:
         raise DcsmsError("--modes: no mode given")
+    if args.segment is None:
+        args.segment = BATCH_SEGMENT_S if args.engine == "batch" else GRAPH_SEGMENT_S
     if not (args.segment > 0 and args.settle >= 0):
         raise DcsmsError("--segment must be > 0 and --settle >= 0")
     check_deploy_options(args)
+    if args.config is None:  # the paper's experiment; --config config/table1.yaml: 1-DOF
+        args.config = find_share_file(DEFAULT_CONFIG)
     cfg = load_cfg(args)
     print_model_check(cfg)
     out = _prepare(args.out)
@@ -80,7 +102,10 @@ def run(args: argparse.Namespace) -> int:
 
     summary = analyze([bag], reference="passive", out_dir=out, settle_s=args.settle)
     print(summary.table())
-    ok = _verdict(summary)
+    if cfg.plant.dof == 6:
+        ok = _verdict_3d(summary, predict_table4(cfg, [m for m in modes if m.label in ORDER]))
+    else:
+        ok = _verdict(summary)
     print(f"dcsms demo: report {out / 'report.md'} (total {time.monotonic() - t_wall:.0f} s)")
     return 0 if ok else 1
 
@@ -127,20 +152,85 @@ def _verdict(summary: Any) -> bool:
     ordered = len(have) >= 2 and all(a > b for a, b in pairwise(vals))
     skipped = [m for m in ORDER if m not in have]
     best = z.get("DFBC+FFC")
-    sat = sum(f["saturated_samples"] for s in summary.segments for f in s.get("forces", []))
-    peak = max((f["peak_n"] / f["limit_n"] for s in summary.segments
-                for f in s.get("forces", []) if f["peak_n"] is not None), default=0.0)
     print(f"ordering in Z {' > '.join(have)}: {'reproduced' if ordered else 'NOT reproduced'}"
           + (f" (not run: {', '.join(skipped)})" if skipped else ""))
     if best is not None:
         print(f"DFBC+FFC / Passive in Z = {best:.3f} "
               f"({'<=' if best <= BEST_MAX else '>'} {BEST_MAX:g})")
-    print(f"actuator forces: peak {100 * peak:.1f} % of the limit, {sat} saturated samples")
+    fine, text = _forces_ok(summary)
+    print(text)
+    return ordered and best is not None and best <= BEST_MAX and fine
+
+
+def paper_order(axis: str) -> list[str]:
+    """The paper's Table-4 modes on ``axis``, largest value first."""
+    return sorted((m for m in ORDER if m != "Passive"), key=lambda m: -TABLE4[m][axis])
+
+
+def _forces_ok(summary: Any) -> tuple[bool, str]:
+    sat = sum(f["saturated_samples"] for s in summary.segments for f in s.get("forces", []))
+    peak = max((f["peak_n"] / f["limit_n"] for s in summary.segments
+                for f in s.get("forces", []) if f["peak_n"] is not None), default=0.0)
     unstable = [s["mode"] for s in summary.segments if s.get("stability", {}).get("unstable")]
+    text = f"actuator forces: peak {100 * peak:.1f} % of the limit, {sat} saturated samples"
+    growing = [s["mode"] for s in summary.segments
+               if s.get("stability", {}).get("growing") and s["mode"] not in unstable]
     if unstable:
-        print(f"UNSTABLE: the velocity envelope grows in {', '.join(unstable)} (see the "
-              f"report's warnings)")
-    return ordered and best is not None and best <= BEST_MAX and sat == 0 and not unstable
+        text += f"; UNSTABLE: the velocity envelope grows in {', '.join(unstable)}"
+    if growing:
+        text += (f"; a velocity envelope grows in {', '.join(growing)} while the model is "
+                 "stable (a slow transient; see report.md)")
+    return sat == 0 and not unstable, text
 
 
-__all__ = ["register", "run"]
+def _verdict_3d(summary: Any, model: Table4) -> bool:
+    """X / Y / Z beside the paper's Table 4 and the model's prediction of this run (the value a
+    long run converges to); reproduced when every axis sorts the four controlled modes as the
+    paper does (a swap of modes the model predicts within :data:`CLOSE_RATIO` is named, not
+    failed), nothing saturated and nothing grew."""
+    ours = {s["mode"]: s["axes"] for s in summary.segments}
+    axes = [a for a in ("x", "y", "z") if a in summary.axes]
+    print(f"{'mode':<10}" + "".join(f"{a.upper() + ' paper':>9}{'model':>7}{'ours':>7}"
+                                    for a in axes))
+    for m in ORDER:
+        cells = "".join(f"{TABLE4[m][a]:>9.3f}{_num(model.values.get(m, {}).get(a)):>7}"
+                        f"{_num(_val(ours, m, a)):>7}" for a in axes)
+        print(f"{m:<10}{cells}")
+    ok = True
+    # a --modes subset is judged on the controlled modes it ran
+    skipped = [m for m in ORDER[1:] if m not in ours]
+    for a in axes:
+        have = [m for m in paper_order(a) if _val(ours, m, a) is not None]
+        got = sorted(have, key=lambda m: -float(_val(ours, m, a) or 0.0))
+        swaps = [(hi, lo) for i, hi in enumerate(have) for lo in have[i + 1:]
+                 if float(_val(ours, hi, a) or 0.0) < float(_val(ours, lo, a) or 0.0)]
+        close = [(hi, lo) for hi, lo in swaps
+                 if model.values[hi][a] < CLOSE_RATIO * model.values[lo][a]]
+        same = len(have) >= 2 and not swaps
+        fine = len(have) >= 2 and len(close) == len(swaps)
+        ok &= fine
+        verdict = ("reproduced" if same else
+                   f"reproduced within the scatter, ours {' > '.join(got)}: "
+                   + ", ".join(f"{hi} / {lo} predicted {model.values[hi][a]:.3f} / "
+                               f"{model.values[lo][a]:.3f}" for hi, lo in close)
+                   if fine else f"NOT reproduced, ours {' > '.join(got)}")
+        print(f"order in {a.upper()} {' > '.join(have)} (paper's): {verdict}"
+              + (f" (not run: {', '.join(skipped)})" if skipped else ""))
+    if summary.paper:
+        print(f"within +-30 % of the paper: {within(summary.paper)} of {len(summary.paper)}")
+    fine, text = _forces_ok(summary)
+    print(text)
+    return ok and fine
+
+
+def _val(ours: dict[str, Any], mode: str, axis: str) -> float | None:
+    v = ours.get(mode, {}).get(axis, {}).get("normalized")
+    return None if v is None else float(v)
+
+
+def _num(x: Any) -> str:
+    return "-" if x is None else f"{float(x):.3f}"
+
+
+__all__ = ["BATCH_SEGMENT_S", "DEFAULT_CONFIG", "GRAPH_SEGMENT_S", "paper_order", "register",
+           "run"]

@@ -37,7 +37,7 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Handler: call the service(s) and print the answer."""
     mode = parse_mode(args.name) if args.name is not None else None  # ModeError -> exit 2
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    # deferred: `dcsms mode BAD` must fail fast, without ROS
     import rclpy  # noqa: PLC0415 - deferred: ROS
     from rclpy.context import Context  # noqa: PLC0415 - deferred: ROS
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415 - deferred: ROS
@@ -77,8 +77,11 @@ def run(args: argparse.Namespace) -> int:
                 return 1
         if not calls:
             got: list[str] = []
-            node.create_subscription(String, topics.MODE, lambda m: got.append(m.data),
-                                     qos.latched())
+
+            def on_mode(msg: Any) -> None:
+                got.append(msg.data)
+
+            node.create_subscription(String, topics.MODE, on_mode, qos.latched())
             deadline = time.monotonic() + args.timeout
             while not got and time.monotonic() < deadline:
                 executor.spin_once(timeout_sec=0.1)

@@ -34,7 +34,7 @@ def mode_dict(p: Pole) -> dict[str, Any]:
 
 
 def _pole_dict(p: Pole) -> dict[str, Any]:
-    d = {"eigenvalue_hz": p.s_hz, "growth_per_s": TWO_PI * p.s_hz.real}
+    d: dict[str, Any] = {"eigenvalue_hz": p.s_hz, "growth_per_s": TWO_PI * p.s_hz.real}
     if p.part:
         d.update(z_abs=abs(p.z), part=p.part)
     return d

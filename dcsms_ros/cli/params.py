@@ -1,6 +1,6 @@
 """``dcsms params``: every configurable parameter with unit, default, range and meaning.
 
-``--markdown`` prints the table that the README's Parameters section is generated from.
+``--markdown`` prints the table that docs/parameters.md is generated from.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from dcsms_ros.core.schema import (
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.markers import replace_between_markers
 
-#: Markers around the generated table in the README.
+#: Markers around the generated table in docs/parameters.md.
 BEGIN = "<!-- dcsms params --markdown: begin -->"
 END = "<!-- dcsms params --markdown: end -->"
 
@@ -38,7 +38,7 @@ def register(subparsers: Any) -> None:
     fmt.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--into", type=Path, metavar="FILE", default=None,
                    help=f"with --markdown: replace the text between '{BEGIN}' and '{END}' in "
-                   "FILE (the README) instead of printing")
+                   "FILE (docs/parameters.md) instead of printing")
     p.set_defaults(func=run)
 
 

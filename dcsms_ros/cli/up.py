@@ -11,7 +11,6 @@ Node logs go to files in ``--log-dir`` (shown at start) unless ``--verbose``.
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import tempfile
 from collections.abc import Sequence
@@ -172,7 +171,6 @@ def run(args: argparse.Namespace) -> int:
         parse_excitations(cfg, args.excite)
     elif args.excite_off:
         raise DcsmsError("--excite-off needs --excite SPEC")
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     print_model_check(cfg)
     observers = list(args.wait_for_subscribers)
     spec = build_graph(cfg, args, args.schedule, mode, args.duration or 0.0, events)

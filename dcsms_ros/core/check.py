@@ -151,14 +151,12 @@ def check_mode(cfg: SystemConfig, mode: Mode, min_gm_db: float = MIN_GM_DB,
         fails.append(f"unstable: pole {p.real:+.4f} {p.imag:+.4f}j Hz (growth "
                      f"{st.growth_per_s:.3g} /s)")
     else:
-        for lp in loops:
-            if abs(lp.gm_db) < min_gm_db or lp.pm_deg < min_pm_deg:
-                fails.append(f"{lp.controller}.{lp.axis} margins {lp.gm_db:.1f} dB / "
-                             f"{lp.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg")
-        for dk in disks:
-            if dk.gm_db < min_gm_db or dk.pm_deg < min_pm_deg:
-                fails.append(f"stage{dk.stage} disk margin {dk.gm_db:.1f} dB / "
-                             f"{dk.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg")
+        fails.extend(f"{lp.controller}.{lp.axis} margins {lp.gm_db:.1f} dB / "
+                     f"{lp.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg"
+                     for lp in loops if abs(lp.gm_db) < min_gm_db or lp.pm_deg < min_pm_deg)
+        fails.extend(f"stage{dk.stage} disk margin {dk.gm_db:.1f} dB / "
+                     f"{dk.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg"
+                     for dk in disks if dk.gm_db < min_gm_db or dk.pm_deg < min_pm_deg)
         peak = PEAK_FACTOR * force
         over = [f"{n} {p:.3g} N > {lim:g} N" for n, p, lim in zip(names, peak, limit,
                                                                   strict=True) if p > lim]

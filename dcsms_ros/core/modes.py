@@ -33,6 +33,12 @@ class Mode(enum.Enum):
         """Controller ids enabled in this mode."""
         return _ENABLED[self]
 
+    @property
+    def feedback(self) -> bool:
+        """Whether any feedback loop is closed (Passive and FFC are open loop: a stable plant
+        driven through a stable filter cannot become unstable)."""
+        return FB_STAGE1 in _ENABLED[self]
+
 
 _LABELS = {
     Mode.PASSIVE: "Passive",
@@ -78,7 +84,7 @@ def parse_mode(name: str) -> Mode:
 
 def controller_ids(num_stages: int) -> tuple[str, ...]:
     """Every controller of an N-stage cascade: ``fb_stage1`` … ``fb_stageN``, then ``ff_stage1``."""
-    return tuple(f"fb_stage{i}" for i in range(1, num_stages + 1)) + (FF_STAGE1,)
+    return (*(f"fb_stage{i}" for i in range(1, num_stages + 1)), FF_STAGE1)
 
 
 def enabled_controllers(mode: Mode, num_stages: int) -> frozenset[str]:

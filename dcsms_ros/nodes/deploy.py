@@ -30,6 +30,7 @@ import yaml
 
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, RT_PRIORITY_ENV, GraphSpec
+from dcsms_ros.rosenv import keep_discovery_local
 
 #: Seconds a process gets to exit after SIGINT, then after SIGTERM, before SIGKILL.
 STOP_TIMEOUTS = (5.0, 2.0)
@@ -99,7 +100,7 @@ def recorder_command(out: str | Path, topics: Sequence[str] | None = None,
 def child_env() -> dict[str, str]:
     """Environment of the processes: localhost discovery, unbuffered, plain logs."""
     env = dict(os.environ)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    keep_discovery_local(env)
     env["PYTHONUNBUFFERED"] = "1"
     env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
     return env

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import fnmatch
 import importlib
-import os
 import signal
 import sys
 import time
@@ -48,6 +47,7 @@ from rclpy.signals import SignalHandlerOptions
 from dcsms_ros.analysis.bagio import BagWriter
 from dcsms_ros.analysis.gaps import Recording, TopicStats
 from dcsms_ros.errors import BagError, DcsmsError
+from dcsms_ros.rosenv import keep_discovery_local
 
 NODE_NAME = "dcsms_recorder"
 DEFAULT_TOPICS = ("/dcsms/*",)
@@ -86,17 +86,16 @@ def _dur(ns: int) -> str:
 def qos_yaml(profiles: Sequence[Any]) -> str:
     """Offered QoS profiles (rclpy ``QoSProfile``) as rosbag2 v9 metadata YAML, one per
     publisher, as ``ros2 bag record`` writes them."""
-    out = []
-    for q in profiles:
-        out.append(f"- history: {q.history.name.lower()}\n  depth: {int(q.depth)}\n"
-                   f"  reliability: {q.reliability.name.lower()}\n"
-                   f"  durability: {q.durability.name.lower()}\n"
-                   f"  deadline: {_dur(q.deadline.nanoseconds)}\n"
-                   f"  lifespan: {_dur(q.lifespan.nanoseconds)}\n"
-                   f"  liveliness: {q.liveliness.name.lower()}\n"
-                   f"  liveliness_lease_duration: {_dur(q.liveliness_lease_duration.nanoseconds)}"
-                   f"\n  avoid_ros_namespace_conventions: "
-                   f"{str(bool(q.avoid_ros_namespace_conventions)).lower()}\n")
+    out = [f"- history: {q.history.name.lower()}\n  depth: {int(q.depth)}\n"
+           f"  reliability: {q.reliability.name.lower()}\n"
+           f"  durability: {q.durability.name.lower()}\n"
+           f"  deadline: {_dur(q.deadline.nanoseconds)}\n"
+           f"  lifespan: {_dur(q.lifespan.nanoseconds)}\n"
+           f"  liveliness: {q.liveliness.name.lower()}\n"
+           f"  liveliness_lease_duration: {_dur(q.liveliness_lease_duration.nanoseconds)}"
+           f"\n  avoid_ros_namespace_conventions: "
+           f"{str(bool(q.avoid_ros_namespace_conventions)).lower()}\n"
+           for q in profiles]
     return "".join(out)
 
 
@@ -304,7 +303,7 @@ def record(out: str, topics: Sequence[str] | None = None, storage: str | None = 
     BagError
         The bag cannot be created or finished.
     """
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    keep_discovery_local()
     stop = _Stop()
     old = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     context = rclpy.Context()

@@ -36,6 +36,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from dcsms_ros import graph
 from dcsms_ros.errors import DcsmsError
+from dcsms_ros.rosenv import keep_discovery_local
 
 #: Exit status of a configuration error (the CLI's convention).
 EXIT_CONFIG = 2
@@ -71,7 +72,7 @@ def apply_rt_priority() -> str | None:
 
 def localhost_only() -> None:
     """Keep discovery on this machine unless the user chose otherwise."""
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    keep_discovery_local()
 
 
 class Stoppable:

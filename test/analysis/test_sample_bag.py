@@ -1,4 +1,4 @@
-"""The shipped sample bag (recorded from the lockstep graph) analyses as the README shows."""
+"""The shipped sample bag (recorded from the lockstep graph) analyses as docs/tem.md shows."""
 
 from __future__ import annotations
 

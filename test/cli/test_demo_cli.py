@@ -3,14 +3,22 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
+from types import SimpleNamespace
 
-from dcsms_ros.cli import main
+from dcsms_ros.analysis.predict import predict_table4
+from dcsms_ros.cli import demo, main
+from dcsms_ros.core.config import load_config
+from dcsms_ros.core.modes import ALL_MODES
+
+TABLE1 = Path(__file__).resolve().parents[2] / "config" / "table1.yaml"
+TEM = TABLE1.parent / "tem_paper_fit.yaml"
 
 
 def test_batch_demo_reproduces_the_paper_ordering(tmp_path, capsys):
     """Six modes, recorded and analysed: Z ordering as Table 4, DFBC+FFC <= 0.1, no saturation."""
     out = tmp_path / "demo"
-    assert main(["demo", "--engine", "batch", "--out", str(out)]) == 0
+    assert main(["demo", "--engine", "batch", "--config", str(TABLE1), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "Passive > FBC > FBC+FFC > DFBC > DFBC+FFC: reproduced" in text
     summary = json.loads((out / "summary.json").read_text())
@@ -39,7 +47,52 @@ def test_demo_refuses_to_replace_a_foreign_directory(tmp_path, capsys):
 def test_demo_with_a_mode_subset_is_judged_on_the_modes_it_ran(tmp_path, capsys):
     """--modes Passive,DFBC+FFC: exit 0, the ordering of those two, the skipped ones named."""
     out = tmp_path / "sub"
-    assert main(["demo", "--engine", "batch", "--modes", "Passive,DFBC+FFC", "--segment", "7",
-                 "--out", str(out)]) == 0
+    assert main(["demo", "--engine", "batch", "--config", str(TABLE1), "--modes",
+                 "Passive,DFBC+FFC", "--segment", "7", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "Passive > DFBC+FFC: reproduced (not run: FBC, FBC+FFC, DFBC)" in text
+
+
+def test_default_demo_is_the_papers_tem_experiment(tmp_path, capsys):
+    """No --config: the three-point TEM in X / Y / Z, 60 s per mode with the batch engine. Every
+    axis keeps the paper's order, nothing saturates, and each normalised value lies within
+    50 % of the loop model's prediction for a long run (60 s segments scatter ~15 %)."""
+    out = tmp_path / "tem"
+    assert main(["demo", "--engine", "batch", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    for axis in "XYZ":
+        assert f"order in {axis} " in text and "NOT reproduced" not in text
+    summary = json.loads((out / "summary.json").read_text())
+    assert f"config {TEM}" in text
+    cfg = load_config(TEM)
+    model = predict_table4(cfg, ALL_MODES).values
+    for seg in summary["segments"]:
+        assert seg["duration_s"] >= 59.0
+        for f in seg["forces"]:
+            assert f["saturated_samples"] == 0
+        for axis in "xyz":
+            ours = seg["axes"][axis]["normalized"]
+            assert abs(ours / model[seg["mode"]][axis] - 1.0) < 0.5, (seg["mode"], axis, ours)
+
+
+def _summary_from(values):
+    """A demo summary holding normalised X / Y / Z values per mode label."""
+    segs = [{"mode": m, "axes": {a: {"normalized": v[i]} for i, a in enumerate("xyz")},
+             "forces": [], "stability": {}} for m, v in values.items()]
+    return SimpleNamespace(segments=segs, axes=["x", "y", "z"], paper=None)
+
+
+def test_order_verdict_tolerates_only_swaps_the_model_cannot_resolve(capsys):
+    """A swap of X's DFBC and DFBC+FFC (model 1.3x apart) is named and passes; a swap of Z's
+    FBC and DFBC+FFC (model 14x apart) fails the verdict."""
+    model = predict_table4(load_config(TEM), ALL_MODES)
+    base = {m: [model.values[m][a] for a in "xyz"] for m in demo.ORDER}
+    close = {m: list(v) for m, v in base.items()}
+    close["DFBC"][0], close["DFBC+FFC"][0] = base["DFBC+FFC"][0], base["DFBC"][0]
+    assert demo._verdict_3d(_summary_from(close), model)
+    assert "reproduced within the scatter" in capsys.readouterr().out
+    far = {m: list(v) for m, v in base.items()}
+    far["FBC"][2], far["DFBC+FFC"][2] = base["DFBC+FFC"][2], base["FBC"][2]
+    assert not demo._verdict_3d(_summary_from(far), model)
+    assert "order in Z FBC > FBC+FFC > DFBC > DFBC+FFC (paper's): NOT reproduced" in \
+        capsys.readouterr().out

@@ -1,4 +1,4 @@
-"""``dcsms params``: the parameter table and the README section generated from it."""
+"""``dcsms params``: the parameter table and docs/parameters.md generated from it."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from dcsms_ros.cli import main
 from dcsms_ros.cli.params import BEGIN, END, markdown, rows
 from dcsms_ros.core.schema import BODY_SPECS, GLOBAL_SPECS, STAGE_SPECS
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+PARAMETERS_DOC = Path(__file__).resolve().parents[2] / "docs" / "parameters.md"
 
 
 def test_markdown_table(capsys: pytest.CaptureFixture[str]) -> None:
@@ -31,10 +31,10 @@ def test_json_rows(capsys: pytest.CaptureFixture[str]) -> None:
     assert rate["unit"] == "Hz" and rate["range"] == "[10, 100000]"
 
 
-def test_readme_parameter_table_is_current() -> None:
-    """README's Parameters table equals the schema (regenerate: dcsms params --markdown --into
-    README.md)."""
-    text = README.read_text()
+def test_parameter_doc_is_current() -> None:
+    """docs/parameters.md's table equals the schema (regenerate: dcsms params --markdown --into
+    docs/parameters.md)."""
+    text = PARAMETERS_DOC.read_text()
     inner = text.split(BEGIN, 1)[1].split(END, 1)[0]
     assert inner.strip() == markdown(rows()).strip()
 

@@ -1,6 +1,6 @@
-"""Turn the reliability tests' results (JSON lines) into the README "Reliability" table.
+"""Turn the reliability tests' results (JSON lines) into the table of docs/reliability.md.
 
-    python test/reliability/make_table.py [RESULTS.jsonl] [--into README.md]
+    python test/reliability/make_table.py [RESULTS.jsonl] [--into docs/reliability.md]
 
 RESULTS defaults to ``$DCSMS_RELIABILITY_RESULTS`` or the tests' default file; the newest line
 of each row wins. ``--into`` replaces the text between the markers below in that file.

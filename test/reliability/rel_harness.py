@@ -1,5 +1,5 @@
 """Helpers of the reliability tests: a node graph whose processes the test can kill, a probe
-node that records the streams, and the results file the README table is made from."""
+node that records the streams, and the results file docs/reliability.md's table comes from."""
 
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ def results_file() -> Path:
 
 
 def report(row: str, fault: str, result: str, figure: str, **data: Any) -> None:
-    """Append one JSON line (``row`` orders the README table) to :func:`results_file`."""
+    """Append one JSON line (``row`` orders docs/reliability.md's table) to :func:`results_file`."""
     line = {"row": row, "fault": fault, "result": result, "figure": figure,
             "time": time.strftime("%Y-%m-%dT%H:%M:%S"), **data}
     with results_file().open("a") as f:
