@@ -35,8 +35,6 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 CONFIG = HERE.parent / "config" / "table1.yaml"
 Row = dict[str, Any]
-#: Command-line override of the real-time duration (``bench/run.py`` passes none: 60 s).
-RT_SECONDS: float | None = None
 
 
 def _cpu_ticks(pid: int) -> int | None:
@@ -73,7 +71,7 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     plant steps."""
     from dcsms_ros.core.config import load_config
     from dcsms_ros.core.modes import Mode
-    from dcsms_ros.graph import define_graph
+    from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, define_graph
     from dcsms_ros.nodes import deploy
 
     cfg = load_config(config)
@@ -89,8 +87,8 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     bag = run_dir / "bag"
     rec: list[deploy.Child] = []
     if record == "process":
-        rec = [deploy.Child("recorder", deploy.recorder_command(bag, recorded) + [
-            "--queue-depth", str(deploy.LOCKSTEP_WRITER_DEPTH)])]
+        rec = [deploy.Child("recorder", [*deploy.recorder_command(bag, recorded),
+                                         "--queue-depth", str(LOCKSTEP_WRITER_DEPTH)])]
     if composed:
         kids = [deploy.composed_child(graph_file, params, rt_priority,
                                       [str(bag), *recorded] if record == "composed" else ())]
@@ -174,12 +172,13 @@ def _pp(seconds: float, domain: int, executor: str, ping: str = "single") -> dic
                 "rtt_us_p50": float("nan"), "rtt_us_p99": float("nan")}
 
 
-def run(smoke: bool, tmp: Path) -> list[Row]:
-    """Rows: ping-pong variants, lockstep hot/default, real time; all in this run."""
+def run(smoke: bool, tmp: Path, rt_seconds: float | None = None) -> list[Row]:
+    """Rows: ping-pong variants, lockstep hot/default, real time; all in this run.
+    ``rt_seconds``: length of the real-time runs (``--rt-seconds``; default 60 s, smoke 3 s)."""
     base = int(os.environ.get("DCSMS_BENCH_DOMAIN", 150 + os.getpid() % 50))
     pp_s = 1.0 if smoke else 5.0
     ls_s = 0.5 if smoke else 5.0
-    rt_s = RT_SECONDS if RT_SECONDS is not None else (3.0 if smoke else 60.0)
+    rt_s = rt_seconds if rt_seconds is not None else (3.0 if smoke else 60.0)
     rows: list[Row] = []
     bound = _pp(pp_s, base, "single")
     b = bound["round_trips_per_s"]
@@ -233,13 +232,14 @@ def run(smoke: bool, tmp: Path) -> list[Row]:
         r2 = run_graph("realtime", rt_s, base + 5, tmp, timeout_s=rt_s * 3 + 120, rt_priority=50)
         s2 = realtime_stats(r2)
         fifo = _realtime_rows(r2, s2, rt_s, ", --rt-priority 50 (SCHED_FIFO)")
-        for row, (key, scale) in zip(fifo, (("rate_hz", 1.0), ("miss", 1.0), ("lat99", 1e3))):
+        for row, (key, scale) in zip(fifo, (("rate_hz", 1.0), ("miss", 1.0), ("lat99", 1e3)),
+                                      strict=True):
             row["baseline_name"] = "default scheduler"
             row["baseline"] = s[key] * scale
         fifo[0]["target"] = 0.999 * r2["rate_hz"]  # absolute: the nominal rate, as above
         fifo[0].pop("target_ratio")
         rows += fifo
-    rows += composed_rows(smoke, tmp, base)
+    rows += composed_rows(smoke, tmp, base, rt_s)
     return rows
 
 
@@ -253,7 +253,7 @@ def _recorded(r: dict[str, Any], samples: int) -> str:
             + (f"SHORT: {short}" if short else f"every stream complete ({samples} samples)"))
 
 
-def composed_rows(smoke: bool, tmp: Path, base: int) -> list[Row]:
+def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
     """Composed against one process per node, recording on, in this run; 6-DOF; real time
     composed; `dcsms demo --composed` end to end."""
     ls_s = 0.5 if smoke else 10.0
@@ -294,7 +294,6 @@ def composed_rows(smoke: bool, tmp: Path, base: int) -> list[Row]:
     rows.append({"name": "graph: lockstep 6dof TEM DFBC+FFC, composed, recording on",
                  "value": rate / 2000.0, "unit": "x real time", "target": 1.0,
                  "note": f"{rate:.0f} steps/s; {_recorded(tem, int(round(tem_s * 2000)))}"})
-    rt_s = RT_SECONDS if RT_SECONDS is not None else (3.0 if smoke else 60.0)
     r = run_graph("realtime", rt_s, base + 15, tmp, timeout_s=rt_s * 3 + 120, composed=True)
     s = realtime_stats(r)
     rt = _realtime_rows(r, s, rt_s, ", composed")
@@ -328,8 +327,8 @@ def _realtime_rows(r: dict[str, Any], s: dict[str, float], rt_s: float,
                    label: str) -> list[Row]:
     """Achieved rate, deadline-miss ratio and latency rows of one real-time run."""
     cpu = ", ".join(f"{n} {100 * c:.0f}%" for n, c in sorted(r["cpu"].items()))
-    per = f"period p50/p99/p99.9/max {s['p50'] * 1e6:.0f}/{s['p99'] * 1e6:.0f}/" \
-          f"{s['p999'] * 1e6:.0f}/{s['max'] * 1e6:.0f} us"
+    per = (f"period p50/p99/p99.9/max {s['p50'] * 1e6:.0f}/{s['p99'] * 1e6:.0f}/"
+           f"{s['p999'] * 1e6:.0f}/{s['max'] * 1e6:.0f} us")
     taken = r["latency_s"].size / max(s["samples"] * r["controllers"], 1)
     return [
         {"name": f"graph: real time {rt_s:g} s{label}, achieved rate", "value": s["rate_hz"],
@@ -347,14 +346,12 @@ def _realtime_rows(r: dict[str, Any], s: dict[str, float], rt_s: float,
 
 
 def main(argv: list[str] | None = None) -> int:
-    global RT_SECONDS
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--smoke", action="store_true")
     ap.add_argument("--rt-seconds", type=float, default=None)
     a = ap.parse_args(argv)
-    RT_SECONDS = a.rt_seconds
     with tempfile.TemporaryDirectory(prefix="dcsms-graph-") as tmp:
-        rows = run(a.smoke, Path(tmp))
+        rows = run(a.smoke, Path(tmp), a.rt_seconds)
     import run as harness
 
     print(harness.table(rows))

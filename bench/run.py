@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import functools
 import importlib.util
 import json
 import os
@@ -32,8 +33,6 @@ sys.path.insert(0, str(HERE))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 Row = dict[str, Any]
-#: ``--rt-seconds``: length of the real-time graph run (default 60 s, smoke 3 s).
-RT_SECONDS: float | None = None
 
 
 def _engine(smoke: bool, tmp: Path) -> list[Row]:
@@ -62,15 +61,15 @@ def _pingpong(smoke: bool, tmp: Path) -> list[Row]:
                      f"{r['round_trips']} round trips"}]
 
 
-def _graph(smoke: bool, tmp: Path) -> list[Row]:
+def _graph(smoke: bool, tmp: Path, rt_seconds: float | None = None) -> list[Row]:
+    """``rt_seconds``: ``--rt-seconds``, the real-time graph run's length (default 60 s, smoke
+    3 s)."""
     if not (HERE / "graph_bench.py").exists():
         return [{"name": "lockstep / real-time graph", "value": None, "unit": "",
                  "note": "bench/graph_bench.py not written yet (needs the node graph)"}]
     import graph_bench
 
-    if RT_SECONDS is not None:
-        graph_bench.RT_SECONDS = RT_SECONDS
-    return list(graph_bench.run(smoke, tmp))
+    return list(graph_bench.run(smoke, tmp, rt_seconds))
 
 
 def _stream(smoke: bool, tmp: Path) -> list[Row]:
@@ -185,12 +184,11 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         print(f"updated {a.readme} from {a.out}")
         return 0
-    global RT_SECONDS
-    RT_SECONDS = a.rt_seconds
+    benches = {**REGISTRY, "graph": functools.partial(_graph, rt_seconds=a.rt_seconds)}
     rows: list[Row] = []
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="dcsms-bench-") as tmp:
-        for name, fn in REGISTRY.items():
+        for name, fn in benches.items():
             if a.only and name not in a.only:
                 continue
             t = time.perf_counter()

@@ -126,7 +126,7 @@ def test_package_xml_declares_dependencies() -> None:
     assert pkg.package_format == 3
     assert pkg.version == __version__
     assert pkg.get_build_type() == "ament_python"
-    assert REQUIRED_EXEC_DEPENDS <= {d.name for d in pkg.exec_depends}
+    assert {d.name for d in pkg.exec_depends} >= REQUIRED_EXEC_DEPENDS
     assert "python3-pytest" in {d.name for d in pkg.test_depends}
 
 

@@ -122,7 +122,8 @@ class BagWriter:
         if conn is None:
             raise BagError(f"{self.path}: topic {topic} was not added")
         write = self._writer.write
-        for t, b in zip(t_ns.tolist() if hasattr(t_ns, "tolist") else t_ns, buffers):
+        for t, b in zip(t_ns.tolist() if hasattr(t_ns, "tolist") else t_ns, buffers,
+                        strict=True):
             write(conn, t, b)
         self.counts[topic] += len(buffers)
 

@@ -20,6 +20,7 @@ size, frame_id, names, counts or a big-endian header) the whole batch falls back
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -39,15 +40,11 @@ _JOINT_FIELDS = ("position", "velocity", "effort")
 _CDR_LE = b"\x00\x01"
 _NS = 1_000_000_000
 
-_TYPESTORE: Any = None
 
-
+@functools.cache
 def typestore() -> Any:
     """The rosbags Jazzy typestore (created once; building it takes ~50 ms)."""
-    global _TYPESTORE
-    if _TYPESTORE is None:
-        _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
-    return _TYPESTORE
+    return get_typestore(Stores.ROS2_JAZZY)
 
 
 @dataclass
@@ -135,7 +132,7 @@ def _layout(msgtype: str, frame_id: str = "", names: Sequence[str] = (),
         lay.u32(len(names))
         for n in names:
             lay.string(n)
-        for fname, count in zip(_JOINT_FIELDS, counts):
+        for fname, count in zip(_JOINT_FIELDS, counts, strict=True):
             lay.u32(count)
             lay.number(fname, "<f8", count)
     else:
@@ -221,7 +218,7 @@ def encode_joint_state(stamp_ns: np.ndarray, frame_id: str, names: Sequence[str]
     k = sec.size
     arrays = {"sec": sec, "nanosec": nsec}
     counts = []
-    for fname, arr in zip(_JOINT_FIELDS, (position, velocity, effort)):
+    for fname, arr in zip(_JOINT_FIELDS, (position, velocity, effort), strict=True):
         if arr is None:
             counts.append(0)
             continue

@@ -137,11 +137,11 @@ def welch_sums(x: np.ndarray, y: np.ndarray | None, fs: float, nperseg: int,
     cross = np.zeros(nf, dtype=complex)
     for b in range(0, nseg, block):
         ffts = []
-        for v, acc in zip(views, auto):
+        for v, acc in zip(views, auto, strict=True):
             seg = v[b:b + block].astype(np.float64)
             seg -= seg.mean(axis=1, keepdims=True)
             z = np.fft.rfft(seg * win, axis=1)
-            acc += np.sum(z.real ** 2 + z.imag ** 2, axis=0)
+            np.add(acc, np.sum(z.real ** 2 + z.imag ** 2, axis=0), out=acc)
             ffts.append(z)
         if len(ffts) == 2:
             cross += np.sum(np.conj(ffts[0]) * ffts[1], axis=0)

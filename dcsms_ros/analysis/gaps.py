@@ -210,8 +210,7 @@ def format_report(stats: Sequence[TopicStats], missing: Sequence[str] = ()) -> s
                          f"(median period {(s.median_period_ns or 0) * 1e-6:.3f} ms)")
         if s.restarts:
             lines.append(f"    publisher restarted {s.restarts} time(s)")
-    for t in missing:
-        lines.append(f"{t:<34} {'never published':>9}")
+    lines.extend(f"{t:<34} {'never published':>9}" for t in missing)
     total = sum(s.count for s in stats)
     bad = [s.topic for s in stats if not s.ok]
     lines.append(f"total {total} messages on {len(stats)} topics; "

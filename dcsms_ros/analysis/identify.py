@@ -42,6 +42,7 @@ What the data can identify (otherwise :class:`~dcsms_ros.errors.DcsmsError`, one
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -53,6 +54,7 @@ from scipy.optimize import least_squares
 
 from dcsms_ros.analysis import estimators as est
 from dcsms_ros.analysis import frf as frfmod
+from dcsms_ros.analysis import plots
 from dcsms_ros.analysis.modelfrf import LoopFrf, as_estimated
 from dcsms_ros.analysis.reader import BagData, Progress, config_from_yaml, read_bag
 from dcsms_ros.analysis.segments import (
@@ -62,9 +64,10 @@ from dcsms_ros.analysis.segments import (
     split_excited,
     split_segments,
 )
-from dcsms_ros.core.config import SystemConfig, config_from_flat
+from dcsms_ros.core.config import SystemConfig, config_from_flat, params_text
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.errors import DcsmsError
+from dcsms_ros.jsonutil import jsonable
 
 #: Equivalent noise bandwidth of the Hann window in bins (the std inflation, squared).
 HANN_ENBW = 1.5
@@ -134,9 +137,7 @@ def parse_params(cfg: SystemConfig, text: str | None) -> list[Param]:
                  else [f"{k}{i}" for i in range(1, n + 1) for k in "mkc"])
     else:
         names = [t.strip() for t in text.split(",") if t.strip()]
-    out: list[Param] = []
-    for name in names:
-        out.append(_param(name, n, six))
+    out: list[Param] = [_param(name, n, six) for name in names]
     dup = {p.name for p in out if sum(q.name == p.name for q in out) > 1}
     if dup:
         raise DcsmsError(f"--params: {', '.join(sorted(dup))} given twice")
@@ -584,12 +585,6 @@ def write(result: FitResult, out: Path, bags: Sequence[str | Path]) -> list[Path
     DcsmsError
         ``out`` cannot be created.
     """
-    import json
-
-    from dcsms_ros.analysis import plots
-    from dcsms_ros.core.config import params_text
-    from dcsms_ros.jsonutil import jsonable
-
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

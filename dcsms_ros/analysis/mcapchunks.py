@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap.reader import make_reader
 
 _OP_CHUNK, _OP_MESSAGE_INDEX, _OP_MESSAGE = 0x06, 0x07, 0x05
 #: opcode (1) + record length (8) + channel id (2) + sequence (4) + log and publish time (16)
@@ -66,8 +67,6 @@ def summary(path: Path) -> tuple[dict[int, tuple[str, str]], list[Any]]:
     Unsupported
         If the file has no summary with chunk indexes.
     """
-    from mcap.reader import make_reader
-
     with open(path, "rb") as f:
         try:
             s = make_reader(f).get_summary()
@@ -84,11 +83,11 @@ def _decompress(data: memoryview, compression: str, size: int) -> bytes | memory
     if compression == "":
         return data
     if compression == "zstd":
-        import zstandard
+        import zstandard  # noqa: PLC0415 - optional: only for compressed chunks
 
         return zstandard.ZstdDecompressor().decompress(bytes(data), max_output_size=size)
     if compression == "lz4":
-        import lz4.frame  # type: ignore[import-untyped]
+        import lz4.frame  # type: ignore[import-untyped]  # noqa: PLC0415 - optional, as above
 
         return bytes(lz4.frame.decompress(bytes(data)))
     raise Unsupported(f"unknown chunk compression {compression!r}")
@@ -144,7 +143,8 @@ def _block(cid: int, rec: np.ndarray, entries: np.ndarray) -> Block:
     if lengths.size and np.all(lengths == lengths[0]):
         rows = _gather(rec, start, int(lengths[0]))
         return Block(cid, t, rows=rows)
-    bufs = [rec[s:s + n].tobytes() for s, n in zip(start.tolist(), lengths.tolist())]
+    bufs = [rec[s:s + n].tobytes() for s, n in zip(start.tolist(), lengths.tolist(),
+                                                      strict=True)]
     return Block(cid, t, buffers=bufs)
 
 

@@ -151,7 +151,7 @@ class McapBagWriter:
         self.chunk_bytes = chunk_bytes
         self._zstd: Any = None
         if compress:
-            import zstandard
+            import zstandard  # noqa: PLC0415 - optional: only for compressed chunks
 
             self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
         self.topics: dict[str, _Topic] = {}
@@ -256,8 +256,8 @@ class McapBagWriter:
         if self._chunk.size and self._chunk.size + len(data) > self.chunk_bytes:
             self._flush()
         ch = self._chunk
-        for c, e in index.items():
-            e = e.copy()
+        for c, entries in index.items():
+            e = entries.copy()
             e[:, 1] += np.uint64(ch.size)
             ch.index.setdefault(c, []).append(e)
         ch.parts.append(data)

@@ -3,23 +3,21 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from dcsms_ros.analysis import plots
+from dcsms_ros.analysis.paper import CITATION, within
+from dcsms_ros.analysis.summary import Summary, dumps
+from dcsms_ros.analysis.tables import write_spectra
 from dcsms_ros.errors import DcsmsError
-
-if TYPE_CHECKING:
-    from dcsms_ros.analysis.report import Summary
 
 
 def write_all(out: Path, summary: Summary, results: list[dict[str, Any]],
               export: str | None = None) -> None:
     """Write every output file into ``out`` (created) and list them in ``summary.files``;
     ``export`` adds the spectra tables in that format (:mod:`.tables`)."""
-    from dcsms_ros.analysis.report import dumps
-
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -38,8 +36,6 @@ def write_all(out: Path, summary: Summary, results: list[dict[str, Any]],
             out / f"blrms{tag}_{axis}.png",
             f"Band-limited RMS of the top-stage velocity, axis {axis}, {name}", tf))
     if export is not None:
-        from dcsms_ros.analysis.tables import write_spectra
-
         files += write_spectra(out, results, summary.axes, export)
     summary.files = [str(p) for p in [out / "report.md", *files, out / "summary.json"]]
     (out / "report.md").write_text(markdown(summary, [Path(f).name for f in files]))
@@ -162,8 +158,6 @@ def _md_resolution(s: Summary) -> str:
 
 
 def _md_paper(s: Summary) -> str:
-    from dcsms_ros.analysis.paper import CITATION, within
-
     rows = s.paper or []
     intro = (f"The mode table against {CITATION} (the three-point TEM, measured); ratio = "
              f"ours / paper. {within(rows)} of {len(rows)} within +-30 %.")
@@ -223,10 +217,9 @@ def _md_forces(s: Summary) -> str:
     rows = ["| mode | channel | RMS (N) | peak (N) | limit (N) | saturated samples |",
             "|---|---|---:|---:|---:|---:|"]
     for seg in s.segments:
-        for c in seg.get("forces", []):
-            rows.append(f"| {seg['segment']} | {c['channel']} | {_fmt(c['rms_n'], '.3g')} | "
-                        f"{_fmt(c['peak_n'], '.3g')} | {_fmt(c['limit_n'], '.4g')} | "
-                        f"{c['saturated_samples']} |")
+        rows.extend(f"| {seg['segment']} | {c['channel']} | {_fmt(c['rms_n'], '.3g')} | "
+                    f"{_fmt(c['peak_n'], '.3g')} | {_fmt(c['limit_n'], '.4g')} | "
+                    f"{c['saturated_samples']} |" for c in seg.get("forces", []))
     return "\n".join(rows) if len(rows) > 2 else "No `/dcsms/actuators/applied` data."
 
 

@@ -8,13 +8,14 @@ from typing import Any
 import numpy as np
 
 from dcsms_ros.analysis.criteria import CRITERIA
+from dcsms_ros.analysis.estimators import h1_random_error
 
 
 def _pyplot() -> Any:
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 - deferred: matplotlib only when plotting
 
     matplotlib.use("Agg")  # headless CI / ssh; must precede pyplot's import
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - deferred: matplotlib only when plotting
 
     return plt
 
@@ -47,8 +48,6 @@ def plot_frf(path: Path, curves: list[dict[str, Any]], ylabel: str, title: str) 
     where not evaluated) and ``flagged`` [(lo, hi), ...] Hz. Bins whose |H1| random error
     exceeds 10 % are drawn faint: there the estimate is scatter from uncorrelated sources.
     """
-    from dcsms_ros.analysis.estimators import h1_random_error
-
     plt = _pyplot()
     fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(8, 6.5),
                                    gridspec_kw={"height_ratios": [3, 1]})

@@ -21,11 +21,13 @@ from __future__ import annotations
 import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from fnmatch import fnmatch
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
+from rosbags.rosbag2 import Reader
 
 from dcsms_ros.analysis import cdr, mcapchunks
 from dcsms_ros.core import topics
@@ -157,8 +159,6 @@ def read_bag(path: str | Path, progress: Progress | None = None,
 def _with_reader(p: Path, work: Callable[[Any], Any]) -> Any:
     """``work(reader)`` on an open rosbags Reader of ``p``; every failure but a BagError
     becomes one BagError naming the file."""
-    from rosbags.rosbag2 import Reader
-
     if not p.exists():
         raise BagError(f"{p}: no such bag")
     try:
@@ -457,8 +457,6 @@ def read_topics(path: str | Path, names: Iterable[str] | None = None,
     BagError
         Unreadable bag, a named topic that is missing, or one of a type without numbers.
     """
-    from fnmatch import fnmatch
-
     p = Path(path)
     pats = list(names) if names is not None else ["/dcsms/*"]
     modes: list[tuple[int, str]] = []

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from rosbags.rosbag2 import Reader
+from scipy import signal
 
 from dcsms_ros.analysis import cdr
 from dcsms_ros.core import topics
@@ -67,8 +69,6 @@ def read_twists(bag: str | Path, topic: str | None = None) -> tuple[str, np.ndar
     BagError
         Missing or unreadable bag, topic absent or not TwistStamped; names the bag.
     """
-    from rosbags.rosbag2 import Reader
-
     p = Path(bag)
     if not p.exists():
         raise BagError(f"{p}: no such bag")
@@ -116,8 +116,6 @@ def resample(stamp_ns: np.ndarray, values: Array, rate_hz: float) -> Array:
     ndarray, shape (M, n)
         Samples at ``t0 + m / rate_hz``, t0 = the first stamp.
     """
-    from scipy import signal
-
     t, idx = np.unique(np.asarray(stamp_ns, dtype=np.int64), return_index=True)
     x = np.asarray(values, dtype=np.float64)[idx]
     if t.size < 2:

@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from dcsms_ros.analysis import estimators as est
-from dcsms_ros.analysis import frf, modetable, timefreq
+from dcsms_ros.analysis import frf, modetable, output, timefreq
 from dcsms_ros.analysis import paper as paper_table
 from dcsms_ros.analysis.criteria import evaluate
 from dcsms_ros.analysis.modelfrf import LoopFrf
@@ -26,64 +24,14 @@ from dcsms_ros.analysis.segments import (
     split_segments,
 )
 from dcsms_ros.analysis.stability import envelope
+from dcsms_ros.analysis.summary import Summary, dumps
 from dcsms_ros.core.check import Stability, stability
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import parse_mode
 from dcsms_ros.errors import DcsmsError
-from dcsms_ros.jsonutil import jsonable
 
 #: An applied force within this fraction of its limit counts as saturated.
 SATURATION_FRACTION = 0.999
-
-
-@dataclass
-class Summary:
-    """Result of :func:`analyze`; :meth:`to_dict` is what ``summary.json`` holds.
-
-    Attributes
-    ----------
-    segments : list of dict
-        One per analysed segment (see ``summary.json``: ``mode``, ``segment`` (the mode, and
-        the excitation when the segment is excited), ``axes.<a>.normalized``,
-        ``axes.<a>.attenuation_db``, ``vc``, ``estimates`` (what the segment can estimate, with
-        the usable bins), ``model`` (the loop model against every usable bin), ``forces`` ...).
-    reference : str
-        Label of the reference mode; ``resonance_hz`` its resonance per axis (Hz).
-    files : list of str
-        Written files (report.md, PNGs, summary.json) when ``out_dir`` was given.
-    """
-
-    bags: list[str]
-    reference: str
-    axes: list[str]
-    resonance_hz: dict[str, float] = field(default_factory=dict)
-    segments: list[dict[str, Any]] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
-    config_source: str | None = None
-    files: list[str] = field(default_factory=list)
-    definition: str = modetable.__doc__ or ""
-    #: rows {mode, axis, paper, ours, ratio} against the paper's Table 4, when compared
-    paper: list[dict[str, Any]] | None = None
-    blrms_bands_hz: list[list[float]] = field(default_factory=list)
-    #: (bag index, axis, TimeFrequency) of the top stage per bag and axis, for the figures
-    timefreq: list[tuple[int, str, timefreq.TimeFrequency]] = field(default_factory=list)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (no arrays of spectra; those go to the plots)."""
-        return jsonable({
-            "bags": self.bags, "reference": self.reference, "axes": self.axes,
-            "resonance_hz": self.resonance_hz, "config_source": self.config_source,
-            "blrms_bands_hz": self.blrms_bands_hz,
-            "table4_definition": " ".join(self.definition.split()),
-            "segments": self.segments, "warnings": self.warnings, "files": self.files,
-            "paper_comparison": self.paper,
-        })
-
-    def table(self) -> str:
-        """The mode table as text (see :func:`modetable.format_table`); an excited segment is
-        named with its excitation."""
-        rows = [{**s, "mode": s.get("segment", s["mode"])} for s in self.segments]
-        return modetable.format_table(rows, self.axes)
 
 
 def analyze(bags: Sequence[str | Path], reference: str = "passive",
@@ -142,8 +90,7 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
             continue
         segs = split_segments(data.modes, int(ref.stamp_ns[0]), int(ref.stamp_ns[-1]),
                               settle_s)
-        for seg in split_excited(segs, data.excitation, settle_s):
-            work.append((data, seg, cfg))
+        work.extend((data, seg, cfg) for seg in split_excited(segs, data.excitation, settle_s))
     axes = _axes(work)
     summary = Summary([str(b) for b in bags], ref_mode.label, axes, warnings=warnings,
                       config_source=cfg_source, blrms_bands_hz=[list(b) for b in blrms_bands])
@@ -163,8 +110,6 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
         summary.paper = paper_table.comparison(ours, axes)
     if out_dir is not None:
         summary.timefreq = _timefreq(work, axes, blrms_bands, summary)
-        from dcsms_ros.analysis import output
-
         output.write_all(Path(out_dir), summary, results, export)
     return summary
 
@@ -183,8 +128,8 @@ def _axes(work: list[tuple[BagData, Segment, SystemConfig | None]]) -> list[str]
 def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[str],
              summary: Summary, models: dict[Any, LoopFrf | None],
              verdicts: dict[Any, Stability]) -> dict[str, Any] | None:
-    where = f"{data.path} [{seg.label}{' excited' if seg.excited else ''} @ " \
-            f"{seg.t0_ns * 1e-9:.2f} s]"
+    where = (f"{data.path} [{seg.label}{' excited' if seg.excited else ''} @ "
+             f"{seg.t0_ns * 1e-9:.2f} s]")
     if seg.duration_s < MIN_SEGMENT_S:
         summary.warnings.append(f"{where}: only {seg.duration_s:.1f} s after settling; skipped")
         return None
@@ -294,8 +239,8 @@ def _stability(bodies: dict[str, np.ndarray], stages: list[str], axes: list[str]
                  f"(x{g['factor']:.1f} over the segment)")
         if unstable:
             p = None if model is None else model.worst_s_hz
-            why = "" if p is None else f"; the model is unstable too (pole {p.real:+.4f} " \
-                f"{p.imag:+.4f}j Hz)"
+            why = "" if p is None else (f"; the model is unstable too (pole {p.real:+.4f} "
+                                        f"{p.imag:+.4f}j Hz)")
             summary.warnings.append(f"{where}: UNSTABLE: {grows}{why}")
         else:
             tau = judged["slowest_time_constant_s"] if judged else None
@@ -428,11 +373,6 @@ def _table4(results: list[dict[str, Any]], ref_label: str, summary: Summary) -> 
             norm, db = modetable.normalize(val, base)
             r["json"]["axes"][a].update(resonance_band_rms_mps=val, normalized=norm,
                                         attenuation_db=db)
-
-
-def dumps(summary: Summary) -> str:
-    """``summary.json`` text (strict JSON: non-finite numbers become null)."""
-    return json.dumps(summary.to_dict(), indent=1, allow_nan=False)
 
 
 __all__ = ["Summary", "analyze", "dumps"]

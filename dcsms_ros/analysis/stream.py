@@ -36,7 +36,9 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.engine import SimResult, Simulation
 from dcsms_ros.core.excitation import Excitation, ExcitationSpec
+from dcsms_ros.core.model import actuator_count
 from dcsms_ros.core.modes import Mode, controller_ids, controller_stage
+from dcsms_ros.core.sensors import channel_layout
 from dcsms_ros.errors import DcsmsError
 
 #: Simulated seconds per block.
@@ -141,9 +143,6 @@ def bytes_per_sample(cfg: SystemConfig) -> int:
 
 
 def _channel_and_actuator_counts(cfg: SystemConfig) -> tuple[int, int]:
-    from dcsms_ros.core.model import actuator_count
-    from dcsms_ros.core.sensors import channel_layout
-
     return len(channel_layout(cfg)), sum(actuator_count(cfg, i)
                                          for i in range(1, cfg.plant.num_stages + 1))
 
@@ -244,8 +243,8 @@ class _Writer:
             buf = tpl.encode(t_ns)
             for lay, v, o in zip(self.lay, _values(res, self.clock, self.exc_stage),
                                  tpl.offsets, strict=True):
-                o += MESSAGE_HEADER
-                encode_rows(lay, t_ns, v, buf[:, o:o + lay.template.size])
+                start = o + MESSAGE_HEADER
+                encode_rows(lay, t_ns, v, buf[:, start:start + lay.template.size])
             rows = [buf]
         else:
             rows = [encode_rows(lay, t_ns, v) for lay, v in zip(

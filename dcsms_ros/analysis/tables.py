@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.io import savemat
 
 from dcsms_ros.analysis import estimators as est
 from dcsms_ros.analysis.reader import column_unit, read_topics
@@ -122,8 +123,6 @@ def _save_arrays(path: Path, fmt: str, arrays: dict[str, Any]) -> Path:
             with open(tmp, "wb") as fh:
                 np.savez(fh, **arrays)
         else:
-            from scipy.io import savemat
-
             savemat(tmp, arrays, do_compression=True, oned_as="column")
     return path
 

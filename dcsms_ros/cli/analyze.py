@@ -5,16 +5,13 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
+from dcsms_ros.analysis.paper import within
+from dcsms_ros.cli.common import ProgressBar
+from dcsms_ros.core.config import load_config
 from dcsms_ros.errors import DcsmsError
-
-#: Without a terminal, seconds between two progress lines (and before the first).
-PIPE_PERIOD_S = 10.0
-#: Bags with fewer messages finish in about a second: no progress bar for them.
-PROGRESS_MIN_MESSAGES = 200_000
 
 
 def register(subparsers: Any) -> None:
@@ -46,42 +43,6 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run)
 
 
-class _ProgressBar:
-    """Progress of a long bag on stderr: a redrawn bar on a terminal; elsewhere (a log, a pipe)
-    a whole line every :data:`PIPE_PERIOD_S`, the first after that long, so a bag that fails
-    early gives its one-line error and nothing else."""
-
-    def __init__(self, stream: Any = None) -> None:
-        self._stream = stream  # None: sys.stderr as it is when the bar is first drawn
-        self.tty: bool | None = None
-        self.last = time.monotonic()
-        self.shown = False
-
-    @property
-    def stream(self) -> Any:
-        return self._stream if self._stream is not None else sys.stderr
-
-    def __call__(self, done: int, total: int) -> None:
-        if total < PROGRESS_MIN_MESSAGES:
-            return
-        if self.tty is None:
-            self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-            if self.tty:
-                self.last = 0.0
-        now = time.monotonic()
-        period = 0.2 if self.tty else PIPE_PERIOD_S
-        if now - self.last < period and (done < total or not self.shown):
-            return
-        self.last = now
-        frac = min(done / total, 1.0) if total else 1.0
-        bar = "#" * int(30 * frac)
-        text = f"reading [{bar:<30}] {100 * frac:5.1f}% ({done}/{total} msgs)"
-        self.stream.write(f"\r{text}" + ("\n" if done >= total else "") if self.tty
-                          else text + "\n")
-        self.shown = True
-        self.stream.flush()
-
-
 def _num(x: float | None) -> str:
     return "-" if x is None or not math.isfinite(x) else f"{x:.3f}"
 
@@ -100,16 +61,17 @@ def _estimates(ests: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Handler: analyse, print the mode table (or JSON), return 0."""
-    from dcsms_ros.analysis.report import analyze, dumps
-    from dcsms_ros.analysis.timefreq import parse_bands
-    from dcsms_ros.core.config import load_config
+    # deferred (here and in every sub-command below): the analysis imports scipy and rosbags,
+    # which `dcsms --help` (it imports every sub-command module) must not pay for
+    from dcsms_ros.analysis.report import analyze, dumps  # noqa: PLC0415 - deferred for --help
+    from dcsms_ros.analysis.timefreq import parse_bands  # noqa: PLC0415 - deferred for --help
 
     if args.export is not None and args.out is None:
         raise DcsmsError("--export needs --out DIR (the tables are written there)")
     bands = parse_bands(args.blrms)
     cfg = load_config(args.config) if args.config is not None else None
     summary = analyze(args.bags, reference=args.reference, out_dir=args.out, config=cfg,
-                      progress=_ProgressBar(), settle_s=args.settle, export=args.export,
+                      progress=ProgressBar(), settle_s=args.settle, export=args.export,
                       blrms_bands=bands, paper=args.paper)
     if args.json:
         print(dumps(summary))
@@ -118,8 +80,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"reference: {summary.reference} (resonance {res or 'n/a'})")
     print(summary.table())
     if summary.paper:
-        from dcsms_ros.analysis.paper import within
-
         print("paper Table 4 (ours / paper): " + "; ".join(
             f"{r['mode']} {r['axis']} {r['paper']:.3f}/{_num(r['ours'])}" for r in summary.paper)
             + f"; {within(summary.paper)} of {len(summary.paper)} within +-30 %")

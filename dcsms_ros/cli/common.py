@@ -8,20 +8,28 @@ everywhere; :func:`load_cfg` turns the first two into a validated
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import sys
+import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from dcsms_ros.core.config import SystemConfig, load_config, parse_override
+from dcsms_ros import core
+from dcsms_ros.core.config import SystemConfig, load_config, parse_override, with_overrides
+from dcsms_ros.core.modes import parse_mode
 from dcsms_ros.core.safety import MIN_GM_DB, MIN_PM_DEG
 from dcsms_ros.errors import ConfigError, DcsmsError
 from dcsms_ros.jsonutil import jsonable
 
 PACKAGE = "dcsms_ros"
 DEFAULT_PRESET = "table1.yaml"
+#: Without a terminal, seconds between two progress lines (and before the first).
+PIPE_PERIOD_S = 10.0
+#: Bags with fewer messages finish in about a second: no progress bar for them.
+PROGRESS_MIN_MESSAGES = 200_000
 
 
 def share_candidates() -> Iterator[Path]:
@@ -37,7 +45,7 @@ def share_candidates() -> Iterator[Path]:
     here = Path(__file__).resolve()
     yield here.parents[2]
     try:
-        from ament_index_python.packages import (
+        from ament_index_python.packages import (  # noqa: PLC0415 - optional dependency
             PackageNotFoundError,
             get_package_share_directory,
         )
@@ -114,8 +122,6 @@ def load_cfg(args: argparse.Namespace) -> SystemConfig:
 
 def parse_schedule(text: str) -> list[tuple[float, Any]]:
     """``"T:MODE,T:MODE"`` -> [(time s, Mode)], sorted; raises DcsmsError on bad items."""
-    from dcsms_ros.core.modes import parse_mode
-
     out = []
     for item in filter(None, (s.strip() for s in text.split(","))):
         t_text, sep, name = item.partition(":")
@@ -134,10 +140,6 @@ def model_check_lines(cfg: SystemConfig) -> list[str]:
     are stable with margins. The verdict is a function of the configuration and of the check's
     code, so it is kept in ``$XDG_CACHE_HOME/dcsms`` (default ``~/.cache``) under their hash:
     a repeated run of the same configuration does not spend seconds recomputing it."""
-    import hashlib
-
-    from dcsms_ros import core
-
     src = b"".join((Path(core.__file__).parent / f).read_bytes() for f in (
         "check.py", "loop_model.py", "margins.py", "spectra.py", "config.py", "schema.py"))
     key = hashlib.sha256(src + json.dumps(cfg.params, sort_keys=True, default=str).encode())
@@ -147,7 +149,8 @@ def model_check_lines(cfg: SystemConfig) -> list[str]:
         return list(json.loads(cache.read_text()))
     except (OSError, ValueError):
         pass
-    from dcsms_ros.core.check import check_config
+    # deferred: python-control and the loop model, only when the verdict is not cached
+    from dcsms_ros.core.check import check_config  # noqa: PLC0415 - deferred for --help
 
     bad = [c for c in check_config(cfg) if not c.ok]
     lines = [f"model check: {c.mode.label}: {'; '.join(c.failures)}" for c in bad] or [
@@ -170,7 +173,11 @@ def print_model_check(cfg: SystemConfig) -> None:
 
 def parse_excitations(cfg: Any, texts: Sequence[str]) -> list[Any]:
     """``--excite`` texts -> checked :class:`~dcsms_ros.core.excitation.ExcitationSpec` list."""
-    from dcsms_ros.core.excitation import check_specs, parse_spec
+    # deferred: python-control (filters), not for `dcsms --help`
+    from dcsms_ros.core.excitation import (  # noqa: PLC0415 - deferred for --help
+        check_specs,
+        parse_spec,
+    )
 
     specs = [parse_spec(t) for t in texts]
     check_specs(cfg, specs)
@@ -180,14 +187,50 @@ def parse_excitations(cfg: Any, texts: Sequence[str]) -> list[Any]:
 def plant_config(cfg: Any, texts: Sequence[str]) -> Any:
     """The plant of ``--plant-set NAME=VALUE`` overrides (None without any), checked against
     ``cfg`` (:func:`~dcsms_ros.core.simulator.check_plant`)."""
-    from dcsms_ros.core.config import parse_override, with_overrides
-    from dcsms_ros.core.simulator import check_plant
+    # deferred: python-control (sensors, filters), not for `dcsms --help`
+    from dcsms_ros.core.simulator import check_plant  # noqa: PLC0415 - deferred for --help
 
     if not texts:
         return None
     plant = with_overrides(cfg, dict(parse_override(t) for t in texts))
     check_plant(cfg, plant)
     return plant
+
+
+class ProgressBar:
+    """Progress of a long bag on stderr: a redrawn bar on a terminal; elsewhere (a log, a pipe)
+    a whole line every :data:`PIPE_PERIOD_S`, the first after that long, so a bag that fails
+    early gives its one-line error and nothing else."""
+
+    def __init__(self, stream: Any = None) -> None:
+        self._stream = stream  # None: sys.stderr as it is when the bar is first drawn
+        self.tty: bool | None = None
+        self.last = time.monotonic()
+        self.shown = False
+
+    @property
+    def stream(self) -> Any:
+        return self._stream if self._stream is not None else sys.stderr
+
+    def __call__(self, done: int, total: int) -> None:
+        if total < PROGRESS_MIN_MESSAGES:
+            return
+        if self.tty is None:
+            self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+            if self.tty:
+                self.last = 0.0
+        now = time.monotonic()
+        period = 0.2 if self.tty else PIPE_PERIOD_S
+        if now - self.last < period and (done < total or not self.shown):
+            return
+        self.last = now
+        frac = min(done / total, 1.0) if total else 1.0
+        bar = "#" * int(30 * frac)
+        text = f"reading [{bar:<30}] {100 * frac:5.1f}% ({done}/{total} msgs)"
+        self.stream.write(f"\r{text}" + ("\n" if done >= total else "") if self.tty
+                          else text + "\n")
+        self.shown = True
+        self.stream.flush()
 
 
 def print_json(obj: Any) -> None:
@@ -197,7 +240,7 @@ def print_json(obj: Any) -> None:
 
 def plot_dir(path: Path) -> Path:
     """Create the ``--plot`` directory and select the non-interactive matplotlib backend."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 - deferred: matplotlib
 
     matplotlib.use("Agg")  # no display in CI or over ssh; must precede pyplot's import
     try:
@@ -208,7 +251,8 @@ def plot_dir(path: Path) -> Path:
 
 
 __all__ = [
-    "add_config_options", "add_margin_options", "add_output_options", "default_config_path",
+    "ProgressBar", "add_config_options", "add_margin_options", "add_output_options",
+    "default_config_path",
     "find_share_file", "jsonable", "load_cfg", "model_check_lines", "parse_excitations",
     "parse_schedule", "plant_config", "plot_dir", "print_json", "print_model_check",
     "share_candidates",

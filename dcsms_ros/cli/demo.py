@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
         _graph(args, cfg, modes, span, total, bag, out)
     print(f"dcsms demo: simulated and recorded in {time.monotonic() - t_wall:.0f} s; "
           f"analysing {bag}", flush=True)
-    from dcsms_ros.analysis.report import analyze
+    from dcsms_ros.analysis.report import analyze  # noqa: PLC0415 - deferred for --help
 
     summary = analyze([bag], reference="passive", out_dir=out, settle_s=args.settle)
     print(summary.table())
@@ -126,7 +126,7 @@ def _schedule(modes: list[Mode], span: float) -> list[tuple[float, Mode]]:
 
 
 def _batch(cfg: Any, modes: list[Mode], span: float, total: float, bag: Path) -> None:
-    from dcsms_ros.analysis.stream import stream_bag
+    from dcsms_ros.analysis.stream import stream_bag  # noqa: PLC0415 - deferred for --help
 
     stream_bag(cfg, modes[0], total, bag, schedule=_schedule(modes, span))
 

@@ -7,6 +7,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from dcsms_ros.cli.common import ProgressBar
+
 #: Topics exported when ``--topics`` is not given: what a vibration engineer asks for first.
 DEFAULT_TOPICS = ("/dcsms/velocity/*", "/dcsms/force/*", "/dcsms/actuators/applied")
 
@@ -31,14 +33,14 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Handler: export, print the files written."""
-    from dcsms_ros.analysis.tables import write_timeseries
-    from dcsms_ros.cli.analyze import _ProgressBar
+    # deferred: rosbags and scipy, not for `dcsms --help`
+    from dcsms_ros.analysis.tables import write_timeseries  # noqa: PLC0415 - deferred for --help
 
     out = args.out if args.out is not None else args.bag.with_name(args.bag.name + "_export")
     # the default topics that the bag has (a bag without forces still exports); named ones
     # must exist
     names = args.topics if args.topics is not None else list(DEFAULT_TOPICS)
-    files = write_timeseries(args.bag, out, names, args.format, _ProgressBar(),
+    files = write_timeseries(args.bag, out, names, args.format, ProgressBar(),
                              strict=args.topics is not None)
     print(f"wrote {len(files)} files to {out}")
     return 0

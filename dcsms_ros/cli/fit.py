@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from dcsms_ros.cli.common import ProgressBar, print_json
+from dcsms_ros.core.config import load_config
 from dcsms_ros.errors import DcsmsError
 
 
@@ -57,11 +59,9 @@ def _starts(texts: list[str]) -> dict[str, float]:
 
 def run(args: argparse.Namespace) -> int:
     """Handler: collect, fit, print (or JSON), write files."""
-    from dcsms_ros.analysis import identify
-    from dcsms_ros.analysis.frf import KINDS
-    from dcsms_ros.cli.analyze import _ProgressBar
-    from dcsms_ros.cli.common import print_json
-    from dcsms_ros.core.config import load_config
+    # deferred: scipy, rosbags and the loop model, not for `dcsms --help`
+    from dcsms_ros.analysis import identify  # noqa: PLC0415 - deferred for --help
+    from dcsms_ros.analysis.frf import KINDS  # noqa: PLC0415 - deferred for --help
 
     kinds = [k.strip() for k in args.use.split(",") if k.strip()]
     bad = [k for k in kinds if k not in KINDS]
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         raise DcsmsError(f"--use {args.use!r}: expected a list of {', '.join(KINDS)}")
     starts = _starts(args.start)
     cfg = load_config(args.config) if args.config is not None else None
-    col = identify.collect(args.bags, cfg, kinds, progress=_ProgressBar())
+    col = identify.collect(args.bags, cfg, kinds, progress=ProgressBar())
     params = identify.parse_params(col.cfg, args.params)
     result = identify.fit(col, params, starts)
     files = identify.write(result, args.out, args.bags) if args.out is not None else []

@@ -37,14 +37,15 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Handler: call the service(s) and print the answer."""
     mode = parse_mode(args.name) if args.name is not None else None  # ModeError -> exit 2
-    import rclpy  # imported late: `dcsms mode BAD` must fail fast, without ROS
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
-    from std_msgs.msg import String
-    from std_srvs.srv import Trigger
+    # deferred: `dcsms mode BAD` must fail fast, without ROS
+    import rclpy  # noqa: PLC0415 - deferred: ROS
+    from rclpy.context import Context  # noqa: PLC0415 - deferred: ROS
+    from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415 - deferred: ROS
+    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415 - deferred: ROS
+    from std_msgs.msg import String  # noqa: PLC0415 - deferred: ROS
+    from std_srvs.srv import Trigger  # noqa: PLC0415 - deferred: ROS
 
-    from dcsms_ros.nodes import qos
+    from dcsms_ros.nodes import qos  # noqa: PLC0415 - deferred: ROS
 
     ctx = Context()
     rclpy.init(args=[], context=ctx, signal_handler_options=SignalHandlerOptions.NO)
@@ -76,8 +77,11 @@ def run(args: argparse.Namespace) -> int:
                 return 1
         if not calls:
             got: list[str] = []
-            node.create_subscription(String, topics.MODE, lambda m: got.append(m.data),
-                                     qos.latched())
+
+            def on_mode(msg: Any) -> None:
+                got.append(msg.data)
+
+            node.create_subscription(String, topics.MODE, on_mode, qos.latched())
             deadline = time.monotonic() + args.timeout
             while not got and time.monotonic() < deadline:
                 executor.spin_once(timeout_sec=0.1)

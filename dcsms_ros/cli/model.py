@@ -169,7 +169,7 @@ def parse_factors(text: str) -> list[float]:
 
 def run_routh(args: argparse.Namespace) -> int:
     """Print the Routh array of the characteristic polynomial and the verdict."""
-    from dcsms_ros.core import analytics  # python-control: see _handler
+    from dcsms_ros.core import analytics  # noqa: PLC0415 - deferred for --help
 
     if args.coeffs is not None:
         coeffs = np.asarray(args.coeffs, dtype=float)

@@ -3,28 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import math
 from typing import Any
 
 from dcsms_ros.cli.common import load_cfg, print_json
 from dcsms_ros.cli.model_common import AS_RUNS, IDEAL, TWO_PI
 from dcsms_ros.core import analytics
-from dcsms_ros.core.check import Pole, loop_poles
-from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.check import Pole, ideal_poles, loop_poles, oscillatory
 from dcsms_ros.core.modes import Mode
-
-
-def ideal_poles(cfg: SystemConfig, mode: Mode) -> list[Pole]:
-    """Eigenvalues of the paper's continuous model (no sensors), largest real part first."""
-    lam = analytics.eigenvalues(cfg, mode) / TWO_PI
-    return [Pole(complex(x), complex(math.nan, math.nan), "")
-            for x in sorted(lam, key=lambda x: -x.real)]
-
-
-def oscillatory(poles: list[Pole]) -> list[Pole]:
-    """One entry per complex pair (positive imaginary part), lowest frequency first."""
-    out = [p for p in poles if p.s_hz.imag > 1e-9 * max(abs(p.s_hz), 1.0)]
-    return sorted(out, key=lambda p: p.frequency_hz)
 
 
 def _collapse(modes: list[Pole]) -> list[tuple[Pole, int]]:
@@ -49,7 +34,7 @@ def mode_dict(p: Pole) -> dict[str, Any]:
 
 
 def _pole_dict(p: Pole) -> dict[str, Any]:
-    d = {"eigenvalue_hz": p.s_hz, "growth_per_s": TWO_PI * p.s_hz.real}
+    d: dict[str, Any] = {"eigenvalue_hz": p.s_hz, "growth_per_s": TWO_PI * p.s_hz.real}
     if p.part:
         d.update(z_abs=abs(p.z), part=p.part)
     return d
@@ -97,4 +82,4 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["ideal_poles", "mode_dict", "oscillatory", "run"]
+__all__ = ["mode_dict", "run"]

@@ -6,7 +6,6 @@ Eigenvalue loci (paper Fig. 3) and the FRC and analytic PSD of the top stage (pa
 from __future__ import annotations
 
 import argparse
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -14,56 +13,12 @@ from typing import Any
 import numpy as np
 
 from dcsms_ros.cli.common import load_cfg, plot_dir, print_json
-from dcsms_ros.cli.model_common import TWO_PI, Array, CArray, check_axis, db, grid
-from dcsms_ros.cli.model_eig import ideal_poles, mode_dict, oscillatory
-from dcsms_ros.core.config import SystemConfig, scaled
-from dcsms_ros.core.model import axis_names, input_slices, plant_state_space
-from dcsms_ros.core.modes import Mode
+from dcsms_ros.cli.model_common import Array, CArray, check_axis, db, grid
+from dcsms_ros.cli.model_eig import mode_dict
 from dcsms_ros.core.schema import resolve_alias
+from dcsms_ros.core.sweep import sweep as sweep_factors
+from dcsms_ros.core.sweep import track
 from dcsms_ros.errors import ConfigError
-
-# ---------------------------------------------------------------------------------------------
-# sweep
-
-
-def top_stage_response(cfg: SystemConfig, axis: str, f_hz: Array) -> tuple[CArray, CArray]:
-    """``v_pN/v_b`` and ``v_pN/F_i`` (force on table i along ``axis``, i = 1..N) of the passive
-    plant: shapes (len(f),) and (len(f), N)."""
-    ss = plant_state_space(cfg)
-    g_sl, _, w_sl = input_slices(cfg)
-    dof, n = cfg.plant.dof, cfg.plant.num_stages
-    j = axis_names(dof).index(axis)
-    out_row = (n - 1) * dof + j
-    from dcsms_ros.core.lti import ss_response
-
-    s = 2j * math.pi * np.asarray(f_hz, dtype=float)
-    cols = [g_sl.start + j] + [w_sl.start + i * dof + j for i in range(n)]
-    h = [ss_response(ss.a, ss.b[:, [col]], ss.c[[out_row], :], 0.0, s) for col in cols]
-    return h[0], np.stack(h[1:], axis=1)
-
-
-def _eigenvalues_hz(cfg: SystemConfig) -> CArray:
-    lam = np.linalg.eigvals(plant_state_space(cfg).a) / TWO_PI
-    return np.asarray(sorted(lam, key=lambda z: (z.imag, z.real)), dtype=complex)
-
-
-def _track(loci: Sequence[CArray]) -> CArray:
-    """Reorder each step's eigenvalues to continue the nearest track of the step before
-    (assignment problem), so lines and arrows follow one root; shape (steps, n_roots)."""
-    from scipy.optimize import linear_sum_assignment
-
-    tracks = [np.asarray(loci[0])]
-    for lam in loci[1:]:
-        cost = np.abs(tracks[-1][:, None] - np.asarray(lam)[None, :])
-        _, col = linear_sum_assignment(cost)
-        tracks.append(np.asarray(lam)[col])
-    return np.vstack(tracks)
-
-
-def _pick(n: int, k: int) -> list[int]:
-    if n <= k:
-        return list(range(n))
-    return sorted({int(round(x)) for x in np.linspace(0, n - 1, k)})
 
 
 def sweep(args: argparse.Namespace) -> int:
@@ -76,18 +31,10 @@ def sweep(args: argparse.Namespace) -> int:
     if args.ground_psd < 0 or args.force_psd < 0:
         raise ConfigError("--ground-psd and --force-psd must be >= 0")
     name = resolve_alias(args.param)
-    cfgs = [scaled(base, args.param, x) for x in args.factors]
-    loci = [_eigenvalues_hz(c) for c in cfgs]
-    modes = [oscillatory(ideal_poles(c, Mode.PASSIVE)) for c in cfgs]
+    sw = sweep_factors(base, args.param, args.factors, args.axis, f, args.ground_psd,
+                       args.force_psd, args.curves)
+    loci, modes, picked, frc, psd = sw.loci, sw.modes, sw.picked, sw.frc, sw.psd
     top = f"v_p{base.plant.num_stages}"
-    picked = _pick(len(cfgs), args.curves)
-    frc: list[CArray] = []
-    psd: list[Array] = []
-    for i in picked:
-        h_g, h_f = top_stage_response(cfgs[i], args.axis, f)
-        frc.append(h_g)
-        psd.append(args.ground_psd * np.abs(h_g) ** 2
-                   + args.force_psd * np.sum(np.abs(h_f) ** 2, axis=1))
     if args.json:
         print_json({
             "param": args.param, "name": name, "axis": args.axis, "factors": args.factors,
@@ -122,10 +69,10 @@ def _print_sweep(param: str, name: str, factors: Sequence[float],
 
 
 def _plot_loci(out: Path, param: str, factors: Sequence[float], loci: Sequence[CArray]) -> None:
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import Normalize
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - deferred: matplotlib
+    from matplotlib.colors import Normalize  # noqa: PLC0415 - deferred: matplotlib
 
-    tracks = _track(loci)
+    tracks = track(loci)
     fig, ax = plt.subplots(figsize=(7, 5.5))
     norm = Normalize(min(factors), max(factors) if max(factors) > min(factors) else
                      min(factors) + 1)
@@ -156,7 +103,7 @@ def _plot_loci(out: Path, param: str, factors: Sequence[float], loci: Sequence[C
 
 def _plot_frc_psd(out: Path, args: argparse.Namespace, top: str, f: Array,
                   factors: Sequence[float], frc: Sequence[CArray], psd: Sequence[Array]) -> None:
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - deferred: matplotlib
 
     fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(12, 4.8))
     for i, (x, h, p) in enumerate(zip(factors, frc, psd, strict=True)):
@@ -176,4 +123,4 @@ def _plot_frc_psd(out: Path, args: argparse.Namespace, top: str, f: Array,
     plt.close(fig)
 
 
-__all__ = ["sweep", "top_stage_response"]
+__all__ = ["sweep"]

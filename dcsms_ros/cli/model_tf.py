@@ -24,25 +24,9 @@ from dcsms_ros.cli.model_common import (
     phase,
 )
 from dcsms_ros.core import analytics
-from dcsms_ros.core.config import SystemConfig
-from dcsms_ros.core.loop_model import Response, loop_model
 from dcsms_ros.core.margins import DiskMargin, LoopMargin, margins
-from dcsms_ros.core.model import axis_names
 from dcsms_ros.core.modes import Mode
-
-
-def transmissibility(cfg: SystemConfig, mode: Mode, axis: str, f: Array,
-                     ideal: bool) -> list[CArray]:
-    """``v_pi/v_b`` (true stage velocity over ground velocity) of each stage along ``axis``."""
-    if ideal:
-        return [analytics.freq_response(tf, f)
-                for tf in analytics.transmissibility(cfg, mode, axis)]
-    dof, n = cfg.plant.dof, cfg.plant.num_stages
-    a = axis_names(dof).index(axis)
-    m = loop_model(cfg, mode)
-    rows = [m.outputs["stage"].start + i * dof + a for i in range(n)]
-    h = Response(m.select([m.inputs["ground"].start + a], rows))(f)
-    return [h[:, i, 0] for i in range(n)]
+from dcsms_ros.core.sweep import transmissibility
 
 
 def _loop_dict(m: LoopMargin) -> dict[str, float]:
@@ -126,7 +110,7 @@ def _print_margins(loops: Sequence[LoopMargin], disks: Sequence[DiskMargin]) -> 
 
 def _plot_bode(out: Path, mode: Mode, axis: str, f: Array, names: Sequence[str],
                resp: Sequence[CArray], passive: Sequence[CArray]) -> None:
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - deferred: matplotlib
 
     fig, (ax_m, ax_p) = plt.subplots(2, 1, sharex=True, figsize=(8, 6.5))
     for i, (n, h) in enumerate(zip(names, resp, strict=True)):
@@ -148,4 +132,4 @@ def _plot_bode(out: Path, mode: Mode, axis: str, f: Array, names: Sequence[str],
     plt.close(fig)
 
 
-__all__ = ["run", "transmissibility"]
+__all__ = ["run"]

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         raise BagError(f"{args.out}: exists already, not overwriting")
     if args.duration is not None and not args.duration > 0:
         raise DcsmsError(f"--duration {args.duration}: must be > 0")
-    from dcsms_ros.nodes.recorder import record  # rclpy: imported only when recording
+    from dcsms_ros.nodes.recorder import record  # noqa: PLC0415 - deferred: ROS
 
     if args.queue_depth is not None and args.queue_depth < 1:
         raise DcsmsError(f"--queue-depth {args.queue_depth}: must be >= 1")

@@ -29,6 +29,8 @@ from dcsms_ros.cli.common import (
     print_model_check,
 )
 from dcsms_ros.cli.up import add_deploy_options, build_graph, check_deploy_options, launch
+from dcsms_ros.core.config import with_overrides
+from dcsms_ros.core.modes import parse_mode
 from dcsms_ros.errors import BagError, DcsmsError
 
 #: Runs with more samples than this show a progress bar on stderr.
@@ -97,9 +99,6 @@ class _Bar:
 
 def run(args: argparse.Namespace) -> int:
     """Handler: simulate, write the bag, print a one-line summary."""
-    from dcsms_ros.core.config import with_overrides
-    from dcsms_ros.core.modes import parse_mode
-
     if args.out.exists() or args.out.with_name(args.out.name + ".partial").exists():
         raise BagError(f"{args.out}: exists already, not overwriting")
     mode = parse_mode(args.mode)
@@ -108,7 +107,9 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_cfg(args)
     if args.seed is not None:  # the seed is a parameter of the graph's plant
         cfg = with_overrides(cfg, {"disturbance.seed": args.seed})
-    from dcsms_ros.analysis.stream import check_run
+    # deferred (the analysis imports below too): the batch engine, python-control, scipy and
+    # the bag writers, which `dcsms --help` must not pay for
+    from dcsms_ros.analysis.stream import check_run  # noqa: PLC0415 - deferred for --help
 
     check_run(cfg, args.duration, args.out)  # nothing is written for a hopeless run
     specs = parse_excitations(cfg, args.excite)
@@ -120,11 +121,14 @@ def run(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if args.ground_from:
-            from dcsms_ros.analysis.replay import load_ground, parse_ground_spec
+            from dcsms_ros.analysis.replay import (  # noqa: PLC0415 - deferred for --help
+                load_ground,
+                parse_ground_spec,
+            )
 
             bag, topic = parse_ground_spec(args.ground_from)
             ground = load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)
-        from dcsms_ros.analysis.stream import stream_bag
+        from dcsms_ros.analysis.stream import stream_bag  # noqa: PLC0415 - deferred for --help
 
         t0 = time.perf_counter()
         res = stream_bag(cfg, mode, args.duration, args.out, schedule=schedule, ground=ground,
@@ -162,7 +166,10 @@ def _graph(args: argparse.Namespace, cfg: Any, mode: Any, schedule: list[Any]) -
         if value:
             raise DcsmsError(f"--engine graph: {flag} is not supported; use --engine batch")
     if args.ground_from:
-        from dcsms_ros.analysis.replay import load_ground, parse_ground_spec
+        from dcsms_ros.analysis.replay import (  # noqa: PLC0415 - deferred for --help
+            load_ground,
+            parse_ground_spec,
+        )
 
         bag, topic = parse_ground_spec(args.ground_from)
         load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)

@@ -103,9 +103,16 @@ def read_target(path: Path, axes: list[str]) -> dict[str, dict[str, float]]:
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``tune``."""
-    from dcsms_ros.analysis.predict import predict_table4, table_axes
-    from dcsms_ros.core.check import check_config
-    from dcsms_ros.design.tuning import Problem, default_knobs, tune
+    from dcsms_ros.analysis.predict import (  # noqa: PLC0415 - deferred for --help
+        predict_table4,
+        table_axes,
+    )
+    from dcsms_ros.core.check import check_config  # noqa: PLC0415 - deferred for --help
+    from dcsms_ros.design.tuning import (  # noqa: PLC0415 - deferred for --help
+        Problem,
+        default_knobs,
+        tune,
+    )
 
     if args.out.exists():
         raise DcsmsError(f"--out {args.out}: exists already, not overwriting")
@@ -186,8 +193,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _batch_check(cfg: Any, args: argparse.Namespace, axes: list[str]
                  ) -> tuple[dict[str, float], dict[str, dict[str, float]], int]:
-    from dcsms_ros.analysis.batchtable import table4_of_runs
-    from dcsms_ros.core.engine import simulate
+    from dcsms_ros.analysis.batchtable import table4_of_runs  # noqa: PLC0415 - deferred for --help
+    from dcsms_ros.core.engine import simulate  # noqa: PLC0415 - deferred for --help
 
     seed = args.seed if args.seed is not None else cfg.disturbance.seed + 1000
     runs = {m: simulate(cfg, m, args.check_seconds + 1.0, seed=seed) for m in ALL_MODES}
@@ -216,7 +223,7 @@ def _print_table(axes: list[str], predicted: Mapping[str, Mapping[str, float]],
 
 def _write(args: argparse.Namespace, source: str, result: Any,
            predicted: Mapping[str, Mapping[str, float]], simulated: Any) -> None:
-    from dcsms_ros.core.params_file import params_text
+    from dcsms_ros.core.params_file import params_text  # noqa: PLC0415 - deferred for --help
 
     when = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     lines = [f"Written by `dcsms tune --objective {args.objective}` on {when} from {source}",

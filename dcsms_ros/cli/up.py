@@ -29,7 +29,7 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode, parse_mode
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import GraphSpec, define_graph
-from dcsms_ros.nodes.deploy import RECORDERS, Deployment
+from dcsms_ros.nodes.deploy import RECORDERS, Deployment, run_graph
 
 
 def add_deploy_options(p: argparse.ArgumentParser) -> None:
@@ -132,7 +132,6 @@ def launch(spec: GraphSpec, args: argparse.Namespace, events: Sequence[tuple[flo
                      record_topics=record_topics, recorder=args.recorder, log_dir=log_dir,
                      verbose=verbose, connect_timeout=getattr(args, "connect_timeout", 60.0),
                      expect_finish=expect_finish, events=events)
-    from dcsms_ros.nodes.deploy import run_graph
 
     stop = {"signal": 0}
 
@@ -161,7 +160,10 @@ def run(args: argparse.Namespace) -> int:
     if args.record is not None and args.record.exists():
         raise DcsmsError(f"--record {args.record}: exists already, not overwriting")
     if args.ground_from:  # fail here with one line, not later inside the plant process
-        from dcsms_ros.analysis.replay import load_ground, parse_ground_spec
+        from dcsms_ros.analysis.replay import (  # noqa: PLC0415 - deferred for --help
+            load_ground,
+            parse_ground_spec,
+        )
 
         bag, topic = parse_ground_spec(args.ground_from)
         load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)

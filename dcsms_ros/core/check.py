@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from dcsms_ros.core import analytics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import Allocator
 from dcsms_ros.core.loop_model import loop_model, pole_parts, poles, s_plane
@@ -77,6 +78,20 @@ def loop_poles(cfg: SystemConfig, mode: Mode) -> list[Pole]:
     return [Pole(complex(s[i]), complex(z[i]), parts[i]) for i in order]
 
 
+def ideal_poles(cfg: SystemConfig, mode: Mode) -> list[Pole]:
+    """Every pole of ``mode`` on the paper's continuous model (ideal sensors, continuous
+    controllers), largest real part first."""
+    lam = analytics.eigenvalues(cfg, mode) / (2.0 * math.pi)
+    return [Pole(complex(x), complex(math.nan, math.nan), "")
+            for x in sorted(lam, key=lambda x: -x.real)]
+
+
+def oscillatory(poles: list[Pole]) -> list[Pole]:
+    """One entry per complex pair (positive imaginary part), lowest frequency first."""
+    out = [p for p in poles if p.s_hz.imag > 1e-9 * max(abs(p.s_hz), 1.0)]
+    return sorted(out, key=lambda p: p.frequency_hz)
+
+
 def stability(cfg: SystemConfig, mode: Mode) -> Stability:
     """Poles of ``mode``'s loop as it runs."""
     m = loop_model(cfg, mode)
@@ -136,14 +151,12 @@ def check_mode(cfg: SystemConfig, mode: Mode, min_gm_db: float = MIN_GM_DB,
         fails.append(f"unstable: pole {p.real:+.4f} {p.imag:+.4f}j Hz (growth "
                      f"{st.growth_per_s:.3g} /s)")
     else:
-        for lp in loops:
-            if abs(lp.gm_db) < min_gm_db or lp.pm_deg < min_pm_deg:
-                fails.append(f"{lp.controller}.{lp.axis} margins {lp.gm_db:.1f} dB / "
-                             f"{lp.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg")
-        for dk in disks:
-            if dk.gm_db < min_gm_db or dk.pm_deg < min_pm_deg:
-                fails.append(f"stage{dk.stage} disk margin {dk.gm_db:.1f} dB / "
-                             f"{dk.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg")
+        fails.extend(f"{lp.controller}.{lp.axis} margins {lp.gm_db:.1f} dB / "
+                     f"{lp.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg"
+                     for lp in loops if abs(lp.gm_db) < min_gm_db or lp.pm_deg < min_pm_deg)
+        fails.extend(f"stage{dk.stage} disk margin {dk.gm_db:.1f} dB / "
+                     f"{dk.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg"
+                     for dk in disks if dk.gm_db < min_gm_db or dk.pm_deg < min_pm_deg)
         peak = PEAK_FACTOR * force
         over = [f"{n} {p:.3g} N > {lim:g} N" for n, p, lim in zip(names, peak, limit,
                                                                   strict=True) if p > lim]
@@ -170,5 +183,5 @@ def unstable_reason(cfg: SystemConfig, mode: Mode) -> str | None:
 
 
 __all__ = ["MIN_GM_DB", "MIN_PM_DEG", "PEAK_FACTOR", "ModeCheck", "Pole", "Stability",
-           "actuator_limits", "check_config", "check_mode", "loop_poles", "stability",
-           "unstable_reason"]
+           "actuator_limits", "check_config", "check_mode", "ideal_poles", "loop_poles",
+           "oscillatory", "stability", "unstable_reason"]

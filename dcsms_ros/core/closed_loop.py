@@ -16,10 +16,13 @@ import numpy as np
 import scipy.linalg
 
 from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.controllers import suspension_totals  # same FF axis totals as the loop
+from dcsms_ros.core.filters import feedback_tf, feedforward_tf
 from dcsms_ros.core.lti import Array, ss_to_tf
 from dcsms_ros.core.model import input_slices, plant_state_space, wrench_input_matrix
 from dcsms_ros.core.modes import Mode, enabled_controllers
 from dcsms_ros.core.schema import AXES6
+from dcsms_ros.core.sensors import extension_tf, geophone_tf
 from dcsms_ros.errors import ConfigError
 
 AXIS_INDEX = {name: i for i, name in enumerate(AXES6)}
@@ -59,9 +62,6 @@ def _is_zero(tf: Any) -> bool:
 
 def controller_links(cfg: SystemConfig, mode: Mode, sensors: bool = False) -> list[Link]:
     """Every non-zero SISO path of the controllers ``mode`` enables (N-stage aware)."""
-    from dcsms_ros.core.controllers import suspension_totals  # same FF axis totals as the loop
-    from dcsms_ros.core.filters import feedback_tf, feedforward_tf
-
     dof, n = cfg.plant.dof, cfg.plant.num_stages
     axes = [(0, _Z)] if dof == 1 else [(a, a) for a in range(6)]
     sensor = _sensor_tf(cfg) if sensors else None
@@ -87,8 +87,6 @@ def controller_links(cfg: SystemConfig, mode: Mode, sensors: bool = False) -> li
 
 
 def _sensor_tf(cfg: SystemConfig) -> Any:
-    from dcsms_ros.core.sensors import extension_tf, geophone_tf
-
     return geophone_tf(cfg.sensors) * extension_tf(cfg.sensors)
 
 

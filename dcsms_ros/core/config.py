@@ -14,8 +14,16 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
+from dcsms_ros.core.geometry import (
+    check_full_rank,
+    check_stiffness,
+    drive_matrix,
+    mount_matrices,
+    sensor_matrix,
+)
 from dcsms_ros.core.params_file import params_text, parse_params_text, read_params_file
 from dcsms_ros.core.schema import (
     check_value,
@@ -24,7 +32,7 @@ from dcsms_ros.core.schema import (
     stage_name,
     suggest,
 )
-from dcsms_ros.errors import ConfigError
+from dcsms_ros.errors import ConfigError, GeometryError
 
 Vec3 = tuple[float, float, float]
 
@@ -291,10 +299,29 @@ def _build(v: Mapping[str, Any], source: str) -> SystemConfig:
         params=dict(v),
     )
     if fidelity == "6dof":
-        from dcsms_ros.core.geometry import check_geometry  # local: geometry imports config
-
         check_geometry(cfg)
     return cfg
+
+
+def check_geometry(cfg: SystemConfig) -> None:
+    """Check every sensor, drive and mount layout of a 6-DOF config (full rank, sane condition
+    number, non-singular suspension); the :class:`ConfigError` names the field and the file."""
+    bodies = [("ground", cfg.plant.ground_sensors, np.zeros(3))]
+    bodies += [(s.name, s.sensors, np.asarray(s.com)) for s in cfg.plant.stages]
+    try:
+        for name, sens, ref in bodies:
+            s = sensor_matrix(np.array(sens.position), np.array(sens.direction), ref)
+            check_full_rank(s, f"{name}.sensors (sensor matrix)")
+        for st in cfg.plant.stages:
+            b = drive_matrix(np.array(st.actuators.position), np.array(st.actuators.direction),
+                             np.asarray(st.com))
+            check_full_rank(b, f"{st.name}.actuators (drive matrix)")
+        for st in cfg.plant.stages:
+            k, _ = mount_matrices(np.array(st.mounts.position), np.array(st.mounts.stiffness),
+                                  np.array(st.mounts.damping))
+            check_stiffness(k, f"{st.name}.mounts")
+    except GeometryError as exc:
+        raise ConfigError(f"{cfg.source}: {exc}") from None
 
 
 def _section(v: Mapping[str, Any], prefix: str) -> dict[str, Any]:
@@ -344,6 +371,7 @@ __all__ = [
     "StageConfig",
     "SystemConfig",
     "Transducers",
+    "check_geometry",
     "config_from_flat",
     "load_config",
     "params_text",

@@ -46,7 +46,9 @@ def _clip(f, limit):  # type: ignore[no-untyped-def]
 
 @numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def _finite(v):  # type: ignore[no-untyped-def]
-    for j in range(v.shape[0]):
+    # a plain loop with an early exit, as numba's nopython mode compiles it best (not all()
+    # over a generator)
+    for j in range(v.shape[0]):  # noqa: SIM110
         if not np.isfinite(v[j]):
             return False
     return True

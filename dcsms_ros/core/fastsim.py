@@ -151,7 +151,7 @@ class FastLoop:
     def run(self, inputs: Inputs, out: tuple[Array, ...]) -> int:
         """Run one sample per input row into the rows of ``out`` (truth, raw, velocity,
         wrench (nc, m, dof), applied); returns the rows done (fewer: a non-finite value)."""
-        from dcsms_ros.core.fastloop import run_block
+        from dcsms_ros.core.fastloop import run_block  # noqa: PLC0415 - optional: numba
 
         m = inputs.ground.shape[0]
         return int(run_block(0, m, self.plant, self.geo, self.ext, self.dec, self.ctl,

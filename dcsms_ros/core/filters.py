@@ -242,8 +242,6 @@ class SosFilter:
         """Set the delay states to the steady state of a constant input ``x`` (channels,), so
         a filter started on a running signal gives no start-up transient (a bumpless start).
         Channels whose filter has no steady state (a pole at z = 1) are left at zero."""
-        from scipy.signal import sosfilt_zi
-
         u = np.asarray(x, dtype=np.float64)
         one = np.ones(self.sections)
         for c in range(self.channels):
@@ -251,7 +249,7 @@ class SosFilter:
                                    self._a1[:, c], self._a2[:, c]])
             with np.errstate(all="ignore"):
                 try:
-                    zi = sosfilt_zi(sos) * u[c]
+                    zi = signal.sosfilt_zi(sos) * u[c]
                 except (np.linalg.LinAlgError, ValueError):
                     continue
             if np.isfinite(zi).all():

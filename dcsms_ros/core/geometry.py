@@ -1,20 +1,18 @@
 """Rigid-body kinematics of mounts, sensors and actuators (paper section 4.2, NOTES.md).
 
+Plain arrays in, arrays out: this module knows nothing of the configuration (``config``
+validates a layout with it, ``model`` builds the plant with it).
+
 A twist is ``[vx, vy, vz, wx, wy, wz]`` (m/s, rad/s) at a reference point; a wrench is
 ``[fx, fy, fz, mx, my, mz]`` (N, N*m) about a reference point. Positions are in metres.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 from numpy.typing import NDArray
 
-from dcsms_ros.errors import ConfigError, GeometryError
-
-if TYPE_CHECKING:
-    from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.errors import GeometryError
 
 #: Largest condition number accepted for a sensor or drive matrix.
 MAX_CONDITION = 1e4
@@ -77,21 +75,22 @@ def check_full_rank(m: Array, what: str, need: int = 6) -> None:
         raise GeometryError(f"{what}: condition number {c:.3g} exceeds {MAX_CONDITION:g}")
 
 
-def check_geometry(cfg: SystemConfig) -> None:
-    """Check every sensor and drive matrix of a 6-DOF config; errors name field and file."""
-    bodies = [("ground", cfg.plant.ground_sensors, np.zeros(3))]
-    bodies += [(s.name, s.sensors, np.asarray(s.com)) for s in cfg.plant.stages]
-    try:
-        for name, sens, ref in bodies:
-            s = sensor_matrix(np.array(sens.position), np.array(sens.direction), ref)
-            check_full_rank(s, f"{name}.sensors (sensor matrix)")
-        for st in cfg.plant.stages:
-            b = drive_matrix(np.array(st.actuators.position), np.array(st.actuators.direction),
-                             np.asarray(st.com))
-            check_full_rank(b, f"{st.name}.actuators (drive matrix)")
-    except GeometryError as exc:
-        raise ConfigError(f"{cfg.source}: {exc}") from None
-    from dcsms_ros.core.model import suspension_matrices  # model imports this module
+def mount_matrices(positions: Array, stiffness: Array, damping: Array) -> tuple[Array, Array]:
+    """Stiffness and damping (6, 6) at the origin of springs at ``positions`` (n, 3) m with
+    per-axis ``stiffness`` (n, 3) N/m and ``damping`` (n, 3) N*s/m."""
+    k = np.zeros((6, 6))
+    c = np.zeros((6, 6))
+    for p, kp, cp in zip(positions, stiffness, damping, strict=True):
+        t = point_velocity_matrix(np.asarray(p, float))
+        k += t.T @ np.diag(kp) @ t
+        c += t.T @ np.diag(cp) @ t
+    return k, c
 
-    for i in range(1, cfg.plant.num_stages + 1):
-        suspension_matrices(cfg, i)  # raises ConfigError naming stageN.mounts and the file
+
+def check_stiffness(k: Array, what: str) -> None:
+    """Raise :class:`GeometryError` if the mount stiffness ``k`` (6, 6) is singular: the mounts
+    leave a rigid-body axis unsupported."""
+    s = np.linalg.svd(k, compute_uv=False)
+    if s[-1] <= 1e-9 * s[0]:
+        raise GeometryError(f"{what}: the stiffness matrix is singular; the mounts cannot hold "
+                            f"all six rigid-body axes")

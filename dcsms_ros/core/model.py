@@ -17,10 +17,16 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from dcsms_ros.core.config import StageConfig, SystemConfig
-from dcsms_ros.core.geometry import drive_matrix, point_velocity_matrix, skew, twist_transform
+from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.geometry import (
+    check_stiffness,
+    drive_matrix,
+    mount_matrices,
+    skew,
+    twist_transform,
+)
 from dcsms_ros.core.schema import AXES6
-from dcsms_ros.errors import ConfigError
+from dcsms_ros.errors import ConfigError, GeometryError
 
 Array = NDArray[np.float64]
 
@@ -57,17 +63,6 @@ def actuator_count(cfg: SystemConfig, stage_index: int) -> int:
     return 1 if cfg.plant.dof == 1 else len(st.actuators.position)
 
 
-def _mount_matrices(st: StageConfig) -> tuple[Array, Array]:
-    k = np.zeros((6, 6))
-    c = np.zeros((6, 6))
-    for p, kp, cp in zip(st.mounts.position, st.mounts.stiffness, st.mounts.damping,
-                         strict=True):
-        t = point_velocity_matrix(np.asarray(p, float))
-        k += t.T @ np.diag(kp) @ t
-        c += t.T @ np.diag(cp) @ t
-    return k, c
-
-
 def suspension_matrices(cfg: SystemConfig, i: int) -> tuple[Array, Array]:
     """Stiffness and damping of the suspension under stage ``i`` (1-based), shape (dof, dof),
     in origin coordinates (N/m, N*s/m; 6dof also N*m/rad etc.).
@@ -80,11 +75,13 @@ def suspension_matrices(cfg: SystemConfig, i: int) -> tuple[Array, Array]:
     st = cfg.plant.stages[i - 1]
     if cfg.plant.dof == 1:
         return np.array([[st.stiffness]]), np.array([[st.damping]])
-    k, c = _mount_matrices(st)
-    s = np.linalg.svd(k, compute_uv=False)
-    if s[-1] <= 1e-9 * s[0]:
-        raise ConfigError(f"{cfg.source}: {st.name}.mounts: the stiffness matrix is singular; "
-                          f"the mounts cannot hold all six rigid-body axes")
+    k, c = mount_matrices(np.asarray(st.mounts.position, float),
+                          np.asarray(st.mounts.stiffness, float),
+                          np.asarray(st.mounts.damping, float))
+    try:
+        check_stiffness(k, f"{st.name}.mounts")
+    except GeometryError as exc:
+        raise ConfigError(f"{cfg.source}: {exc}") from None
     return k, c
 
 

@@ -84,7 +84,7 @@ def parse_mode(name: str) -> Mode:
 
 def controller_ids(num_stages: int) -> tuple[str, ...]:
     """Every controller of an N-stage cascade: ``fb_stage1`` … ``fb_stageN``, then ``ff_stage1``."""
-    return tuple(f"fb_stage{i}" for i in range(1, num_stages + 1)) + (FF_STAGE1,)
+    return (*(f"fb_stage{i}" for i in range(1, num_stages + 1)), FF_STAGE1)
 
 
 def enabled_controllers(mode: Mode, num_stages: int) -> frozenset[str]:

@@ -65,7 +65,7 @@ def _body_refs(cfg: SystemConfig) -> list[tuple[str, tuple[float, float, float]]
     """(body name, reference point) in cascade order."""
     names = body_names(cfg.plant.num_stages)
     refs = [(0.0, 0.0, 0.0)] + [tuple(st.com) for st in cfg.plant.stages]
-    return [(n, (float(r[0]), float(r[1]), float(r[2]))) for n, r in zip(names, refs)]
+    return [(n, (float(r[0]), float(r[1]), float(r[2]))) for n, r in zip(names, refs, strict=True)]
 
 
 def channel_layout(cfg: SystemConfig) -> list[Channel]:
@@ -75,8 +75,8 @@ def channel_layout(cfg: SystemConfig) -> list[Channel]:
         return [Channel(b, f"{b}/z", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)) for b in names]
     sets = [cfg.plant.ground_sensors] + [st.sensors for st in cfg.plant.stages]
     out = []
-    for b, tr in zip(names, sets):
-        for k, (p, d) in enumerate(zip(tr.position, tr.direction), start=1):
+    for b, tr in zip(names, sets, strict=True):
+        for k, (p, d) in enumerate(zip(tr.position, tr.direction, strict=True), start=1):
             out.append(Channel(b, f"{b}/g{k}", tuple(p), tuple(d)))  # type: ignore[arg-type]
     return out
 

@@ -40,7 +40,7 @@ def check_namespace(ns: str) -> str:
         If a token is empty or not ``[A-Za-z_][A-Za-z0-9_]*``.
     """
     text = ns.strip()
-    parts = [p for p in text.strip("/").split("/")] if text.strip("/") else []
+    parts = list(text.strip("/").split("/")) if text.strip("/") else []
     bad = [p for p in parts if not _TOKEN.match(p)]
     if bad or "//" in text:
         raise ConfigError(f"namespace {ns!r}: each part must match [A-Za-z_][A-Za-z0-9_]* "
@@ -163,7 +163,7 @@ RESET_TRIP = DEFAULT.reset_trip
 
 def body_names(num_stages: int) -> tuple[str, ...]:
     """Body names in cascade order: ``ground``, ``stage1`` … ``stageN``."""
-    return ("ground",) + tuple(f"stage{i}" for i in range(1, num_stages + 1))
+    return ("ground", *(f"stage{i}" for i in range(1, num_stages + 1)))
 
 
 def velocity_topic(body: str, ns: str | None = NAMESPACE) -> str:

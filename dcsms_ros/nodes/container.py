@@ -38,9 +38,9 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from dcsms_ros.errors import DcsmsError
-from dcsms_ros.graph import GraphSpec, NodeSpec, spec_from_dict
+from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, GraphSpec, NodeSpec, spec_from_dict
 from dcsms_ros.nodes import hotpath
-from dcsms_ros.nodes.deploy import LOCKSTEP_WRITER_DEPTH
+from dcsms_ros.nodes.recorder import Recorder
 from dcsms_ros.nodes.runtime import POLL_S, close_node, config_error, localhost_only, quiesce
 
 #: Executor threads: services and parameters of six nodes, the mode switch's calls.
@@ -86,8 +86,6 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
     status = 0
     try:
         if record:
-            from dcsms_ros.nodes.recorder import Recorder
-
             recorder = Recorder(record[0], list(record[1:]) or None, context=ctx,
                                 queue_depth=LOCKSTEP_WRITER_DEPTH if spec.schedule ==
                                 "lockstep" else None)

@@ -29,11 +29,8 @@ from typing import Any
 import yaml
 
 from dcsms_ros.core.modes import Mode
-from dcsms_ros.graph import RT_PRIORITY_ENV, GraphSpec
+from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, RT_PRIORITY_ENV, GraphSpec
 from dcsms_ros.rosenv import keep_discovery_local
-
-#: Recorder reader history in lockstep runs (= the writers', dcsms_ros.nodes.qos).
-LOCKSTEP_WRITER_DEPTH = 25000
 
 #: Seconds a process gets to exit after SIGINT, then after SIGTERM, before SIGKILL.
 STOP_TIMEOUTS = (5.0, 2.0)
@@ -176,7 +173,9 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     Returns 0 after a clean stop or finish, 1 if a process died, the graph did not connect or
     the recorder failed. ``announce(number of processes)`` is called once they started.
     """
-    from dcsms_ros.nodes.monitor import GraphMonitor  # rclpy only when needed
+    # deferred: the monitor is an rclpy node, and the CLI imports this module (Deployment,
+    # RECORDERS) to build its parser, which `dcsms --help` must not pay for
+    from dcsms_ros.nodes.monitor import GraphMonitor  # noqa: PLC0415
 
     how.log_dir.mkdir(parents=True, exist_ok=True)
     params_file, graph_file = write_files(spec, how.log_dir)

@@ -117,7 +117,7 @@ def _plain(value: Any) -> Any:
     """rclpy returns arrays as array.array or numpy; the core wants lists."""
     if isinstance(value, (str, bool, int, float)) or value is None:
         return value
-    return [x for x in value]
+    return list(value)
 
 
 def declare_spec(node: Node, spec: ParamSpec, read_only: bool) -> Any:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from rclpy.node import Node
 
+from dcsms_ros.analysis.replay import load_ground, parse_ground_spec
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import controller_ids
 from dcsms_ros.errors import ConfigError
@@ -93,7 +94,5 @@ def replayed_ground(spec: str, cfg: SystemConfig) -> np.ndarray | None:
     """Ground velocity (K, dof) read from ``spec`` (``BAG[:TOPIC]``), or None for white noise."""
     if not spec:
         return None
-    from dcsms_ros.analysis.replay import load_ground, parse_ground_spec
-
     bag, topic = parse_ground_spec(spec)
     return load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)

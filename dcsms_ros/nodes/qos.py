@@ -27,16 +27,10 @@ from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from dcsms_ros.nodes import deploy
+from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH
 
 #: Reader history of lockstep loop streams.
 LOCKSTEP_DEPTH = 1000
-#: Writer history of lockstep streams: how far a reliable observer (recorder, probe) may lag
-#: behind, and the window in which a sample it lost (a full shared-memory queue while its
-#: process was starved) can still be repaired, which takes a heartbeat period (~3 s in Fast
-#: DDS): 25,000 samples are 5 s at the composed graph's 5 kHz. Measured: with 1,000, a
-#: recorder on a loaded machine lost bursts of samples of a composed run.
-LOCKSTEP_WRITER_DEPTH = deploy.LOCKSTEP_WRITER_DEPTH
 #: Writer history of real-time streams for reliable observers: 4 s at 2 kHz, so a recorder
 #: starved of CPU for seconds on a loaded machine loses nothing (the reliability soak measured
 #: 100 samples = 50 ms losing ~7 % and 2000 losing ~2 %). Keep-last writers never block, and the

@@ -86,17 +86,16 @@ def _dur(ns: int) -> str:
 def qos_yaml(profiles: Sequence[Any]) -> str:
     """Offered QoS profiles (rclpy ``QoSProfile``) as rosbag2 v9 metadata YAML, one per
     publisher, as ``ros2 bag record`` writes them."""
-    out = []
-    for q in profiles:
-        out.append(f"- history: {q.history.name.lower()}\n  depth: {int(q.depth)}\n"
-                   f"  reliability: {q.reliability.name.lower()}\n"
-                   f"  durability: {q.durability.name.lower()}\n"
-                   f"  deadline: {_dur(q.deadline.nanoseconds)}\n"
-                   f"  lifespan: {_dur(q.lifespan.nanoseconds)}\n"
-                   f"  liveliness: {q.liveliness.name.lower()}\n"
-                   f"  liveliness_lease_duration: {_dur(q.liveliness_lease_duration.nanoseconds)}"
-                   f"\n  avoid_ros_namespace_conventions: "
-                   f"{str(bool(q.avoid_ros_namespace_conventions)).lower()}\n")
+    out = [f"- history: {q.history.name.lower()}\n  depth: {int(q.depth)}\n"
+           f"  reliability: {q.reliability.name.lower()}\n"
+           f"  durability: {q.durability.name.lower()}\n"
+           f"  deadline: {_dur(q.deadline.nanoseconds)}\n"
+           f"  lifespan: {_dur(q.lifespan.nanoseconds)}\n"
+           f"  liveliness: {q.liveliness.name.lower()}\n"
+           f"  liveliness_lease_duration: {_dur(q.liveliness_lease_duration.nanoseconds)}"
+           f"\n  avoid_ros_namespace_conventions: "
+           f"{str(bool(q.avoid_ros_namespace_conventions)).lower()}\n"
+           for q in profiles]
     return "".join(out)
 
 

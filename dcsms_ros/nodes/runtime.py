@@ -24,6 +24,7 @@ from typing import Any
 
 import rclpy
 from rclpy.context import Context
+from rclpy.duration import Duration
 from rclpy.executors import (
     Executor,
     ExternalShutdownException,
@@ -94,8 +95,6 @@ ACK_WAIT_FINISHED_S = 30.0
 def wait_acked(pubs: Sequence[Any], total_s: float = ACK_WAIT_S) -> None:
     """Wait until every reader acknowledged what ``pubs`` published, ``total_s`` in all (a
     recorder on a loaded machine may lag; a process that exits earlier loses the rest)."""
-    from rclpy.duration import Duration
-
     end = time.monotonic() + total_s
     for pub in pubs:
         pub.wait_for_all_acked(Duration(seconds=max(end - time.monotonic(), 0.0)))

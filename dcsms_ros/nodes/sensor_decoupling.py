@@ -90,14 +90,13 @@ class SensorDecouplingNode(Node):
             idx = np.array([pos.get(n, -1) for n in self.names])
             self._index[key] = idx
             if (idx < 0).any() or len(key) != v.shape[0]:
-                self.get_logger().warning(f"raw message lacks channels "
-                                          f"{[n for n, i in zip(self.names, idx) if i < 0]} or "
+                lacks = [n for n, i in zip(self.names, idx, strict=True) if i < 0]
+                self.get_logger().warning(f"raw message lacks channels {lacks} or "
                                           f"has {v.shape[0]} values for {len(key)} names")
         if len(key) != v.shape[0]:
             self.bad_messages += 1
             return np.full(len(self.names), np.nan)
-        out = np.where(idx >= 0, v[np.maximum(idx, 0)], np.nan)
-        return out
+        return np.where(idx >= 0, v[np.maximum(idx, 0)], np.nan)
 
     def _on_raw(self, buf: bytes) -> None:
         ns, names, v = read_joint_state(buf)

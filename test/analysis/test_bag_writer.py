@@ -29,8 +29,7 @@ def _write(path: Path, storage: str = "mcap") -> dict[str, int]:
         w.write_many("/dcsms/actuators/applied", t[::2],
                      cdr.encode_joint_state(t[::2], "", ["a", "b"], effort=np.ones((K // 2, 2))))
         w.write_many("/clock", t, cdr.encode_clock(t))
-        counts = dict(w.counts)
-    return counts
+        return dict(w.counts)  # before the bag is closed
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])

@@ -48,7 +48,7 @@ def test_fit_identifies_the_changed_plant(fitted: tuple[dict, Path]) -> None:
         p = params[name]
         tol = 0.10 if name.startswith("c") else 0.03
         np.testing.assert_allclose(p["value"], truth, rtol=tol, err_msg=name)
-        assert 0 < p["std"] and abs(p["value"] - truth) < 4 * p["std"] + 1e-3 * truth, name
+        assert p["std"] > 0 and abs(p["value"] - truth) < 4 * p["std"] + 1e-3 * truth, name
         assert p["start"] == PRESET[name]  # the fit starts from the recorded configuration
     assert doc["residual_db_start"] > 1.5 and doc["residual_db"] < 0.5
     assert 0.7 < doc["chi2_reduced"] < 1.5

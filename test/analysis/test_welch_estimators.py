@@ -79,6 +79,6 @@ def test_blockwise_welch_equals_scipy(n: int, nperseg: int, block: int) -> None:
     _, sxy = signal.csd(x.astype(np.float64), y.astype(np.float64), **kw)
     f, spectra, averages = est.welch_sums(x, y, FS, nperseg, block=block)
     np.testing.assert_allclose(f, f_ref)
-    for got, want in zip(spectra, (sxx, syy, sxy)):
+    for got, want in zip(spectra, (sxx, syy, sxy), strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.max(np.abs(want)))
     assert averages == (n - nperseg) // (nperseg - nperseg // 2) + 1

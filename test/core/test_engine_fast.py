@@ -121,11 +121,10 @@ def test_fast_falls_back_on_nonfinite():
     cfg = load_config(CONFIG / "table1.yaml")
     rec = np.full((100, 1), 1e308)
     rec[::2] *= -1.0
-    runs = []
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        for fast in (True, False):
-            runs.append(simulate(cfg, Mode.FBC, 0.05, seed=1, ground=rec, fast=fast))
+        runs = [simulate(cfg, Mode.FBC, 0.05, seed=1, ground=rec, fast=fast)
+                for fast in (True, False)]
     assert runs[1].counters["nonfinite_inputs"] > 0
     assert runs[0].counters == runs[1].counters
     np.testing.assert_array_equal(runs[0].raw, runs[1].raw)

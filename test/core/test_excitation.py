@@ -204,9 +204,9 @@ def test_loop_model_excite_input_equals_the_engine(table1, mode, text, plant_ove
 
 
 def test_plant_may_not_change_structure(table1):
-    with pytest.raises(ConfigError, match="feedback.stage1.gain"):
+    with pytest.raises(ConfigError, match=r"feedback\.stage1\.gain"):
         simulate(table1, Mode.PASSIVE, 0.01, plant=with_overrides(
             table1, {"feedback.stage1.gain": [0, 0, 1.0, 0, 0, 0]}))
-    with pytest.raises(ConfigError, match="actuators.count"):
+    with pytest.raises(ConfigError, match=r"actuators\.count"):
         loop_model(table1, Mode.PASSIVE, plant=with_overrides(
             table1, {"stage1.actuators.count": 2}))

@@ -26,7 +26,7 @@ def test_descriptors_and_rejections_with_reasons(ctx, cfg):
     tool = rclpy.create_node("param_tool", context=ctx)
     client = AsyncParameterClient(tool, "/dcsms/fb_stage1")
     ex = executor_for(ctx, fb, tool)
-    assert spin_until(ex, lambda: client.services_are_ready(), 10.0)
+    assert spin_until(ex, client.services_are_ready, 10.0)
     fut = client.describe_parameters(["feedback.stage1.lowpass_hz", "stage1.mass"])
     assert spin_until(ex, fut.done, 10.0)
     lp, mass = fut.result().descriptors
@@ -59,7 +59,7 @@ def test_gain_change_retunes_the_running_loop(ctx, cfg):
     tool = rclpy.create_node("param_tool", context=ctx)
     client = AsyncParameterClient(tool, "/dcsms/fb_stage1")
     ex = executor_for(ctx, fb, tool)
-    assert spin_until(ex, lambda: client.services_are_ready(), 10.0)
+    assert spin_until(ex, client.services_are_ready, 10.0)
     v = np.array([1e-4])
     w1 = fb.loop.step(v)
     gain = [0.0, 0.0, 3.0e4, 0.0, 0.0, 0.0]

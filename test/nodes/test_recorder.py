@@ -51,7 +51,7 @@ class Graph:
         self.sent = {V1: 0, V2: 0}
 
     def start_recorder(self, wait: tuple[str, ...] = (V1, V2)) -> None:
-        self.proc = subprocess.Popen(recorder_command(self.bag) + ["--json"], env=self.env,
+        self.proc = subprocess.Popen([*recorder_command(self.bag), "--json"], env=self.env,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         end = time.monotonic() + 30.0
         while not recorder_ready(self.node, wait):

@@ -10,7 +10,7 @@ IDS = ["fb_stage1", "fb_stage2", "ff_stage1"]
 def _barrier(**kw: object) -> LockstepBarrier:
     args = {"timeout_s": 0.5, "retry_s": 0.2, "absent_after": 3, "first_timeout_s": 10.0}
     args.update(kw)
-    return LockstepBarrier(IDS + ["trip"], every={"trip": 100}, **args)  # type: ignore[arg-type]
+    return LockstepBarrier([*IDS, "trip"], every={"trip": 100}, **args)  # type: ignore[arg-type]
 
 
 def test_sample_completes_when_every_due_participant_answered() -> None:

@@ -1,0 +1,227 @@
+"""The package's structure: no import cycles, the layers, every module importable on its own.
+
+The import graph is read from the source (:mod:`ast`): every ``import`` of a ``dcsms_ros``
+module counts, at module level, under ``if TYPE_CHECKING:`` or inside a function, so a
+function-local import cannot hide a cycle.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import json
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "dcsms_ros"
+
+#: What each part of the package may import from the others (cli: anything). A part is a
+#: sub-package or a top-level module; ``dcsms_ros`` is the package's ``__init__``.
+ALLOWED: dict[str, set[str]] = {
+    "errors": set(),
+    "jsonutil": set(),
+    "rosenv": set(),
+    "markers": {"errors"},
+    "cdr": {"errors"},
+    "core": {"errors"},
+    "protocols": {"core", "errors"},
+    "analysis": {"core", "errors", "jsonutil", "cdr"},
+    "design": {"core", "analysis", "errors"},
+    "graph": {"core", "errors"},
+    "nodes": {"core", "analysis", "protocols", "graph", "errors", "jsonutil", "cdr", "rosenv"},
+}
+#: Parts that never import ROS (rclpy, message packages), not even inside a function.
+ROS_FREE = set(ALLOWED) - {"nodes"}
+#: Top-level names of the ROS Python packages this project uses.
+ROS_PACKAGES = ("rclpy", "builtin_interfaces", "diagnostic_msgs", "geometry_msgs",
+                "sensor_msgs", "std_msgs", "std_srvs", "rosgraph_msgs", "rcl_interfaces")
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for p in sorted(PACKAGE.rglob("*.py")):
+        parts = list(p.relative_to(ROOT).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = p
+    return out
+
+
+MODULES = _modules()
+
+
+def _part(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "dcsms_ros"
+
+
+def _imports(module: str) -> Iterator[tuple[str, int]]:
+    """(imported name, line) of every import statement in ``module``, wherever it stands;
+    ``from a import b`` yields ``a.b`` (a module or a name in ``a``)."""
+    path = MODULES[module]
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name, node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                here = module.split(".")
+                if path.name != "__init__.py":
+                    here = here[:-1]
+                here = here[:len(here) - (node.level - 1)]
+                base = ".".join([*here, base] if base else here)
+            for a in node.names:
+                yield f"{base}.{a.name}", node.lineno
+
+
+def _resolve(name: str) -> str | None:
+    """The package module ``name`` refers to (the longest prefix that is a module)."""
+    while name and name not in MODULES:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def _graph() -> dict[str, dict[str, int]]:
+    """module -> {imported package module: line of the first import}."""
+    graph: dict[str, dict[str, int]] = {}
+    for m in MODULES:
+        edges: dict[str, int] = {}
+        for name, line in _imports(m):
+            if name == "dcsms_ros" or name.startswith("dcsms_ros."):
+                target = _resolve(name)
+                if target is not None and target != m:
+                    edges.setdefault(target, line)
+        graph[m] = edges
+    return graph
+
+
+def _cycles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_graph_reader_sees_every_kind_of_import() -> None:
+    """The reader finds module-level, relative, TYPE_CHECKING and function-local imports (so a
+    cycle through any of them is found)."""
+    assert "dcsms_ros.core.config" in _graph()["dcsms_ros.core.model"]
+    tree = {"a": {"b": 1}, "b": {"c": 1}, "c": {"a": 1}, "d": {"a": 1}}
+    assert _cycles(tree) == [["a", "b", "c"]]
+    code = ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from . import errors\n"
+            "def f():\n    from .core import modes\n")
+    names = {n for node in ast.walk(ast.parse(code)) if isinstance(node, ast.ImportFrom)
+             for n in (a.name for a in node.names)}
+    assert names == {"TYPE_CHECKING", "errors", "modes"}
+
+
+def test_no_import_cycles() -> None:
+    """The package's import graph (function-local imports included) has no cycle."""
+    graph = _graph()
+    msgs = []
+    for comp in _cycles(graph):
+        edges = [f"{a} -> {b} (line {graph[a][b]})" for a in comp for b in graph[a] if b in comp]
+        msgs.append("cycle: " + "; ".join(edges))
+    assert not msgs, "\n".join(msgs)
+
+
+def test_layers() -> None:
+    """Each part imports only the parts below it; core, analysis, design, protocols and the
+    graph definition never import ROS, not even inside a function."""
+    bad = []
+    for m in MODULES:
+        part = _part(m)
+        for name, line in _imports(m):
+            where = f"{MODULES[m].relative_to(ROOT)}:{line}"
+            top = name.split(".")[0]
+            if top == "dcsms_ros":
+                target = _resolve(name)
+                other = _part(target) if target else "dcsms_ros"
+                if part in ALLOWED and other != part and other not in ALLOWED[part] | {
+                        "dcsms_ros"}:
+                    bad.append(f"{where}: {part} imports {name} ({other})")
+            elif part in ROS_FREE and top in ROS_PACKAGES:
+                bad.append(f"{where}: {part} imports ROS ({name})")
+    assert not bad, "\n".join(bad)
+
+
+_ALONE = r"""
+import importlib, json, sys
+out = {}
+for name, ros_free in json.loads(sys.stdin.read()):
+    for k in [k for k in sys.modules if k == "dcsms_ros" or k.startswith("dcsms_ros.")]:
+        del sys.modules[k]
+    try:
+        importlib.import_module(name)
+    except Exception as exc:
+        out[name] = f"{type(exc).__name__}: {exc}"
+        continue
+    if ros_free and "rclpy" in sys.modules:
+        out[name] = "imports rclpy"
+print(json.dumps(out))
+"""
+
+
+def test_every_module_imports_on_its_own() -> None:
+    """Each module imported first (no other module of the package loaded before it) works;
+    the ROS-free ones (imported first, before anything loads rclpy) do not pull in rclpy."""
+    order = sorted(MODULES, key=lambda m: (_part(m) not in ROS_FREE, m))
+    # the compiled loop needs the optional numba (core.fastsim imports it only when present)
+    numba = importlib.util.find_spec("numba") is not None
+    todo = [(m, _part(m) in ROS_FREE) for m in order
+            if not m.endswith(".__main__")  # runs the program
+            and (m != "dcsms_ros.core.fastloop" or numba)]
+    res = subprocess.run([sys.executable, "-c", _ALONE], input=json.dumps(todo), cwd=ROOT,
+                         capture_output=True, text=True, timeout=300, check=False)
+    assert res.returncode == 0, res.stderr[-3000:]
+    failed = json.loads(res.stdout.strip().splitlines()[-1])
+    assert not failed, "\n".join(f"{k}: {v}" for k, v in failed.items())
+
+
+def test_dcsms_help_does_not_import_ros() -> None:
+    """Building the ``dcsms`` parser (what ``dcsms --help`` does) imports no ROS package: the
+    sub-commands import rclpy when they run."""
+    code = ("import sys, dcsms_ros.cli; dcsms_ros.cli.build_parser(); "
+            f"print(sorted(m for m in sys.modules if m.split('.')[0] in {ROS_PACKAGES!r}))")
+    res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120, check=False)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert res.stdout.strip() == "[]", res.stdout
+
+
+def _numba() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("numba") is not None
