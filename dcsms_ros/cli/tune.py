@@ -136,9 +136,9 @@ def run(args: argparse.Namespace) -> int:
                       args.order_gap)
     say = (lambda *a: print(*a, file=sys.stderr, flush=True)) if args.json else (
         lambda *a: print(*a, flush=True))
-    for k, value, used in problem.clipped():
-        say(f"dcsms tune: {k.label} = {value:.4g} is outside the searched range "
-            f"[{k.lo:g}, {k.hi:g}]; the search starts from {used:.4g}")
+    for knob, value, used in problem.clipped():
+        say(f"dcsms tune: {knob.label} = {value:.4g} is outside the searched range "
+            f"[{knob.lo:g}, {knob.hi:g}]; the search starts from {used:.4g}")
     start = problem.evaluate(problem.start())
     say(f"dcsms tune: {len(knobs)} knobs ({', '.join(k.label for k in knobs)}), objective "
         f"{args.objective}; start {'feasible' if start.feasible else 'INFEASIBLE'}: "
