@@ -22,6 +22,7 @@ An infeasible start is fine: COBYQA works towards feasibility first.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -199,6 +200,7 @@ class Problem:
         # COBYQA re-reads the constraints of earlier points (merit updates): keep them all
         self._cache: dict[tuple[float, ...], Evaluation] = {}
         self.evaluations = 0
+        self.budget = math.inf  # distinct evaluations allowed (set by :func:`tune`)
         bad = [a for a in order if a not in self.axes]
         if bad:
             raise DcsmsError(f"order axes {', '.join(bad)}: the table has {', '.join(self.axes)}")
@@ -233,6 +235,8 @@ class Problem:
         """Judge the candidate at ``u`` (cached for repeated calls)."""
         key = tuple(float(x) for x in u)
         if key not in self._cache:
+            if self.evaluations >= self.budget:
+                raise _BudgetSpent
             self.evaluations += 1
             self._cache[key] = judge(self.config(key), self.axes, self.rows, self.objective,
                                      self.target, self.min_gm, self.min_pm, self.grid,
@@ -285,6 +289,10 @@ def judge(cfg: SystemConfig, axes: Sequence[str], rows: Sequence[str], objective
     return Evaluation(obj, slacks, gm, pm, table)
 
 
+class _BudgetSpent(Exception):
+    """The search asked for more distinct model evaluations than it was given."""
+
+
 @dataclass
 class Result:
     """Outcome of :func:`tune`: the best feasible configuration (or the best found), its
@@ -329,11 +337,15 @@ def tune(problem: Problem, max_evaluations: int = 300,
             progress(iterations[0], best[0][2])
 
     u0 = problem.start()
-    optimize.minimize(fun, u0, method="COBYQA", bounds=optimize.Bounds(0.0, 1.0),
-                      constraints=optimize.NonlinearConstraint(cons, 0.0, np.inf),
-                      callback=callback,
-                      options={"maxfev": max_evaluations, "initial_tr_radius": 0.15,
-                               "final_tr_radius": 1e-4})
+    problem.budget = problem.evaluations + max_evaluations
+    # COBYQA's maxfev counts objective calls; it also asks for constraints at other points, so
+    # the budget of distinct model evaluations is enforced here
+    with contextlib.suppress(_BudgetSpent):
+        optimize.minimize(fun, u0, method="COBYQA", bounds=optimize.Bounds(0.0, 1.0),
+                          constraints=optimize.NonlinearConstraint(cons, 0.0, np.inf),
+                          callback=callback,
+                          options={"maxfev": max_evaluations, "initial_tr_radius": 0.15,
+                                   "final_tr_radius": 1e-4})
     _, u, ev = best[0]
     cfg = problem.config(u)
     values = {k.label: k.from_unit(x) for k, x in zip(problem.knobs, u, strict=True)}

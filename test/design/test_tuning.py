@@ -61,6 +61,7 @@ def test_attenuation_search_improves_and_keeps_every_constraint():
     problem = Problem(cfg, default_knobs(cfg), "attenuation")
     start = problem.evaluate(problem.start())
     result = tune(problem, max_evaluations=40)
+    assert problem.evaluations <= 1 + 40  # the start, then the budget
     assert result.evaluation.feasible
     assert result.evaluation.objective < start.objective - 0.05
     assert all(c.ok for c in check_config(result.cfg))
