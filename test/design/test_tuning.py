@@ -99,9 +99,10 @@ def test_order_constraint_is_a_slack_per_axis():
 
 
 def test_a_start_outside_the_range_is_reported():
-    """The TEM preset's 0.032 / 0.035 Hz high-pass corners lie below --corner-min 0.05: the
-    problem names both and starts them at 0.05 Hz."""
-    cfg = load_config(ROOT / "config" / "tem_three_point.yaml")
+    """High-pass corners of 0.032 / 0.035 Hz lie below --corner-min 0.05: the problem names
+    both and starts them at 0.05 Hz."""
+    cfg = load_config(ROOT / "config" / "tem_three_point.yaml",
+                      {"feedback.stage1.highpass_hz": 0.032, "feedback.stage2.highpass_hz": 0.035})
     problem = Problem(cfg, default_knobs(cfg, corners=True, corner_min_hz=0.05), "attenuation")
     got = {k.label: (v, used) for k, v, used in problem.clipped()}
     assert got == {"feedback.stage1.highpass_hz": (pytest.approx(0.032), pytest.approx(0.05)),
