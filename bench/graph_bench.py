@@ -11,7 +11,7 @@ The plant writes the wall time of every sample and, per controller, the time fro
 publication to the arrival of the force stamped with it (``timing_file``): lockstep rate,
 real-time period percentiles, deadline misses (period > 1.5 T) and sensor-to-force latency
 come from there; CPU share per node from ``/proc/<pid>/stat`` over the stepping phase.
-``python bench/graph_bench.py [--smoke] [--rt-seconds S] [--lockstep-seconds S]``.
+``python bench/graph_bench.py [--smoke] [--rt-seconds S]``.
 """
 
 from __future__ import annotations
