@@ -78,7 +78,9 @@ def run(smoke: bool) -> list[dict[str, Any]]:
             "unit": "sim s / wall s", "baseline_name": "object path (per-sample objects)",
             "baseline": slow, "target": 100.0 if "table1" in file else None,
             "note": f"{fast_s:g} s simulated incl. setup; plant clips {sat} actuator-samples, "
-                    f"controllers clip {100 * clip:.1f} % of samples; max |w| {wmax:.3g} N"})
+                    f"controllers clip {100 * clip:.1f} % of samples; max |w| {wmax:.3g} N"
+                    + (f" (limit lowered to {SATURATING_LIMIT_N:g} N on purpose: the row times "
+                       "the clipping path)" if over else "")})
     return rows
 
 

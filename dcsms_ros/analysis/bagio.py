@@ -27,6 +27,7 @@ from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys.base import TypesysError
 
+from dcsms_ros.analysis import staging
 from dcsms_ros.analysis.cdr import typestore
 from dcsms_ros.errors import BagError
 
@@ -62,18 +63,13 @@ class BagWriter:
         if storage not in STORAGES:
             raise BagError(f"{self.path}: unknown storage {storage!r} "
                            f"(choose {', '.join(STORAGES)})")
-        if self.path.exists():
-            raise BagError(f"{self.path}: exists already, not overwriting")
-        self.staging = self.path.with_name(self.path.name + ".partial")
-        if self.staging.exists():
-            raise BagError(f"{self.staging}: a previous unfinished bag is in the way; remove it")
+        self.staging, self._inner = staging.claim(self.path)
         self.storage = storage
         self.counts: dict[str, int] = {}
         self._conns: dict[str, Any] = {}
         self._closed = False
         # rosbags names the storage file after its directory, so the bag directory inside the
-        # staging area already carries the final name: the rename then needs no rewrite.
-        self._inner = self.staging / self.path.name
+        # staging area (staging.claim) already carries the final name: no rewrite on the rename.
         try:
             self.staging.mkdir(parents=True)
             self._writer = Writer(self._inner, version=BAG_VERSION,
@@ -138,15 +134,7 @@ class BagWriter:
             self._abort_storage()
             shutil.rmtree(self.staging, ignore_errors=True)
             raise BagError(f"{self.path}: cannot finish bag: {exc}") from None
-        if self.path.exists():
-            raise BagError(f"{self.path}: appeared while writing; bag left in {self._inner}")
-        try:
-            self._inner.rename(self.path)
-            self.staging.rmdir()
-        except OSError as exc:
-            raise BagError(f"{self.path}: cannot move the finished bag from {self._inner}: "
-                           f"{exc}") from None
-        return self.path
+        return staging.publish(self.path, self.staging, self._inner)
 
     def abort(self) -> None:
         """Give up: close what can be closed and remove the staging directory."""

@@ -30,6 +30,7 @@ import numpy as np
 import yaml
 
 from dcsms_ros import __version__
+from dcsms_ros.analysis import staging
 from dcsms_ros.analysis.cdr import typestore
 from dcsms_ros.errors import BagError
 
@@ -141,12 +142,7 @@ class McapBagWriter:
     def __init__(self, out: str | Path, chunk_bytes: int = CHUNK_BYTES,
                  compress: bool = True) -> None:
         self.path = Path(out)
-        if self.path.exists():
-            raise BagError(f"{self.path}: exists already, not overwriting")
-        self.staging = self.path.with_name(self.path.name + ".partial")
-        if self.staging.exists():
-            raise BagError(f"{self.staging}: a previous unfinished bag is in the way; remove it")
-        self._inner = self.staging / self.path.name
+        self.staging, self._inner = staging.claim(self.path)
         self.file = self._inner / f"{self.path.name}.mcap"
         self.chunk_bytes = chunk_bytes
         self._zstd: Any = None
@@ -353,15 +349,7 @@ class McapBagWriter:
         except OSError as exc:
             self.abort()
             raise BagError(f"{self.path}: cannot finish bag: {exc}") from None
-        if self.path.exists():
-            raise BagError(f"{self.path}: appeared while writing; bag left in {self._inner}")
-        try:
-            self._inner.rename(self.path)
-            self.staging.rmdir()
-        except OSError as exc:
-            raise BagError(f"{self.path}: cannot move the finished bag from {self._inner}: "
-                           f"{exc}") from None
-        return self.path
+        return staging.publish(self.path, self.staging, self._inner)
 
     def _statistics(self) -> bytes:
         counts = [(t.channel, t.count) for t in self.topics.values()]
