@@ -41,7 +41,7 @@ from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, GraphSpec, NodeSpec, spec_from_dict
 from dcsms_ros.nodes import hotpath
 from dcsms_ros.nodes.recorder import Recorder
-from dcsms_ros.nodes.runtime import POLL_S, close_node, config_error, localhost_only, quiesce
+from dcsms_ros.nodes.runtime import POLL_S, close_nodes, config_error, localhost_only, quiesce
 
 #: Executor threads: services and parameters of six nodes, the mode switch's calls.
 EXECUTOR_THREADS = 3
@@ -111,7 +111,7 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
         since = time.time_ns()
         for nd in reversed(nodes):
             quiesce(executor, nd, timeout_s=1.0)
-            close_node(nd)
+        close_nodes(nodes[::-1])
         if recorder is not None:
             recorder.drain(executor, since)
             print(recorder.finish().text(), flush=True)

@@ -28,6 +28,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from std_srvs.srv import SetBool
 
 from dcsms_ros.core import topics
@@ -46,7 +47,7 @@ from dcsms_ros.nodes.params import (
     declare_observed,
     declare_schedule,
 )
-from dcsms_ros.nodes.runtime import Stoppable, wait_acked
+from dcsms_ros.nodes.runtime import Stoppable
 from dcsms_ros.nodes.stability import StabilityGuard
 from dcsms_ros.nodes.wire import StampedWriter, read_stamped
 from dcsms_ros.protocols.pacer import Watchdog
@@ -250,8 +251,8 @@ class ControllerNode(Node, Stoppable):
                 "stale_events": self.watchdog.stale_events, "boot_ns": self.boot_ns})]
         self.pub_diag.publish(arr)
 
-    def close(self) -> None:
-        """Give reliable observers a moment to receive the last commands and the final
-        counters (clean exit)."""
+    def final_reports(self) -> list[Publisher]:
+        """Publish the final counters; returns the publishers whose readers should
+        acknowledge before the node goes (a clean exit loses nothing)."""
         self._report()
-        wait_acked([self.pub, self.pub_diag])
+        return [self.pub, self.pub_diag]

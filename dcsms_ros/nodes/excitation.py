@@ -26,6 +26,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
@@ -43,7 +44,7 @@ from dcsms_ros.nodes.params import (
     declare_observed,
     declare_schedule,
 )
-from dcsms_ros.nodes.runtime import Stoppable, main_for, wait_acked
+from dcsms_ros.nodes.runtime import Stoppable, main_for
 from dcsms_ros.nodes.wire import StampedWriter, read_joint_state
 from dcsms_ros.protocols.responder import StampResponder, Verdict
 
@@ -170,10 +171,11 @@ class ExcitationNode(Node, Stoppable):
             "out_of_order": self.answers.out_of_order, "tripped": self.tripped})]
         self.pub_diag.publish(arr)
 
-    def close(self) -> None:
-        """Give reliable observers the last samples and the final counters."""
+    def final_reports(self) -> list[Publisher]:
+        """Publish the final counters; returns the publishers whose readers should
+        acknowledge before the node goes (a clean exit loses nothing)."""
         self._report()
-        wait_acked([self.pub, self.pub_diag])
+        return [self.pub, self.pub_diag]
 
 
 main = main_for(ExcitationNode)

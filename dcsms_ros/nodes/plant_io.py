@@ -7,8 +7,9 @@ clock and the true velocities; observer topics nobody subscribes to are not seri
 
 Handshake: sample 0 is published only once every force topic has a publisher, the raw topic a
 subscriber, with ``trip_gate`` mode_switch's trip topics are connected, each topic in
-``wait_for_subscribers`` has a subscriber outside the graph (a recorder or test probe), and the
-plant's own writers matched every reader, then :data:`SETTLE_S` more; or after
+``wait_for_subscribers`` has a subscriber outside the graph (a recorder, a test probe, or the
+``/diagnostics`` reader of ``dcsms up`` that must hear the run end), and the plant's own
+writers matched every reader, then :data:`SETTLE_S` more; or after
 ``handshake_timeout_s``.
 """
 
@@ -21,6 +22,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from rclpy.clock import Clock, ClockType
+from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
@@ -30,7 +32,6 @@ from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.msgs import node_status, sample_ns, to_stamp
 from dcsms_ros.nodes.params import declare_observed, outside_graph, publishers_matched
-from dcsms_ros.nodes.runtime import ACK_WAIT_FINISHED_S, ACK_WAIT_S, wait_acked
 from dcsms_ros.nodes.wire import JointStateWriter, StampedWriter, header_bytes
 from dcsms_ros.protocols.barrier import LockstepBarrier
 
@@ -102,6 +103,8 @@ class PlantIO:
             out.append("mode_switch's trip checkpoints")
         out += [f"observer of {t}" for t in self.observed if not outside_graph(nd, t)]
         own = [self.pub_raw, self.pub_applied, *self.pub_truth]
+        if topics.DIAGNOSTICS in self.observed:  # a supervisor (`dcsms up`) must hear the end
+            own.append(self.pub_diag)
         if self.pub_check is not None:
             own.append(self.pub_check)
         if not out and not publishers_matched(nd, own, self.observed):
@@ -271,8 +274,8 @@ class PlantIO:
             for c, s in states.items()]
         self.pub_diag.publish(arr)
 
-    def close(self) -> None:
-        """Write the timing file (benchmarks) and wait for reliable readers' acknowledgements."""
+    def closing(self) -> list[Publisher]:
+        """Write the timing file (benchmarks); returns the publishers to wait for."""
         if self.node.opts.timing_file:
             np.savez(self.node.opts.timing_file,
                      t_pub_ns=np.asarray(self._t_pub, dtype=np.int64),
@@ -280,8 +283,7 @@ class PlantIO:
                      overruns=self.node.pacer.overruns,
                      **{f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
                         for c, v in self._lat.items()})
-        pubs = [self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag]
-        wait_acked(pubs, ACK_WAIT_FINISHED_S if self.node.finished else ACK_WAIT_S)
+        return [self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag]
 
 
 __all__ = ["SETTLE_S", "STEADY", "PlantIO"]

@@ -30,6 +30,7 @@ import numpy as np
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
 from std_msgs.msg import Header
 
 from dcsms_ros.core import topics
@@ -264,13 +265,13 @@ class PlantSimulatorNode(Node, Stoppable):
         """Lockstep timeouts per controller."""
         return {c: self.barrier.faults[c] for c in self.controllers}
 
-    def close(self) -> None:
-        """Publish what is held back and the final counters; give reliable observers a moment
-        to receive them (clean exit)."""
+    def final_reports(self) -> list[Publisher]:
+        """Publish what is held back and the final counters; returns the publishers whose
+        readers should acknowledge before the node goes (a clean exit loses nothing)."""
         with self._lock:
             self.io.flush_applied()
             self.io.report()
-        self.io.close()
+        return self.io.closing()
 
 
 main = main_for(PlantSimulatorNode)

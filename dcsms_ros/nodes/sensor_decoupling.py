@@ -19,6 +19,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
 
 from dcsms_ros.core import topics
@@ -34,7 +35,7 @@ from dcsms_ros.nodes.params import (
     declare_observed,
     declare_schedule,
 )
-from dcsms_ros.nodes.runtime import main_for, wait_acked
+from dcsms_ros.nodes.runtime import main_for
 from dcsms_ros.nodes.wire import StampedWriter, names_blob, names_of, read_joint_state
 from dcsms_ros.protocols.responder import StampResponder, Verdict
 
@@ -128,11 +129,11 @@ class SensorDecouplingNode(Node):
             "rejected_inputs": self.guard.rejected})]
         self.pub_diag.publish(arr)
 
-    def close(self) -> None:
-        """Give reliable observers a moment to receive the last twists and the final
-        counters (clean exit)."""
+    def final_reports(self) -> list[Publisher]:
+        """Publish the final counters; returns the publishers whose readers should
+        acknowledge before the node goes (a clean exit loses nothing)."""
         self._report()
-        wait_acked([*self.pubs, self.pub_diag])
+        return [*self.pubs, self.pub_diag]
 
 
 main = main_for(SensorDecouplingNode)
