@@ -13,6 +13,7 @@ few PSD bins a damped peak spreads into.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -50,7 +51,7 @@ def normalize(value: float, reference: float) -> tuple[float, float]:
     return ratio, float(-20 * np.log10(ratio)) + 0.0 if ratio > 0 else float("inf")
 
 
-def format_table(rows: Sequence[dict], axes: Sequence[str]) -> str:
+def format_table(rows: Sequence[dict[str, Any]], axes: Sequence[str]) -> str:
     """Plain-text mode table: one row per segment, ``normalized (dB)`` per axis.
 
     Parameters

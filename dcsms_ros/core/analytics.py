@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import control as ct  # type: ignore[import-untyped]
+import control as ct
 import numpy as np
 
 from dcsms_ros.core.closed_loop import (

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import control as ct  # type: ignore[import-untyped]
+import control as ct
 import numpy as np
 import scipy.linalg
 

@@ -12,7 +12,7 @@ Imported only when numba is available (``fastsim.available()``); the core never 
 
 from __future__ import annotations
 
-import numba  # type: ignore[import-untyped]
+import numba
 import numpy as np
 
 
@@ -55,8 +55,8 @@ def _finite(v):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
-def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, noise, excite,
-              out):  # type: ignore[no-untyped-def]
+def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, noise, excite,  # type: ignore[no-untyped-def]
+              out):
     """Run samples ``k0 <= k < k1``; returns ``k1``, or the first sample with a non-finite
     value (the caller then reruns the object path, which owns the fault handling).
 

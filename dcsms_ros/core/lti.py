@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import control as ct  # type: ignore[import-untyped]
+import control as ct
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray

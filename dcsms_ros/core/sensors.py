@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import control as ct  # type: ignore[import-untyped]
+import control as ct
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 

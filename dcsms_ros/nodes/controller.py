@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -61,7 +62,7 @@ STEADY = Clock(clock_type=ClockType.STEADY_TIME)
 class ControllerNode(Node, Stoppable):
     """Base of :class:`FeedbackControllerNode` and :class:`FeedforwardControllerNode`."""
 
-    def setup(self, cid: str, select, body: str) -> None:
+    def setup(self, cid: str, select: Callable[[str], bool], body: str) -> None:
         """Declare parameters, build the core loop and the ROS interfaces.
 
         Parameters
@@ -213,7 +214,8 @@ class ControllerNode(Node, Stoppable):
             self.pub.publish(self.writer.encode(max(self.answers.last_ns, 0) + late,
                                                 self._zero))
 
-    def _on_enable(self, request: SetBool.Request, response: SetBool.Response):
+    def _on_enable(self, request: SetBool.Request,
+                   response: SetBool.Response) -> SetBool.Response:
         with self._lock:
             was = self.loop.enabled
             self.loop.enable(bool(request.data))

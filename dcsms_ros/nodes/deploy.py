@@ -46,7 +46,7 @@ class Child:
     name: str
     argv: list[str]
     log: Path | None = None
-    proc: subprocess.Popen | None = None
+    proc: subprocess.Popen[bytes] | None = None
     env: dict[str, str] = field(default_factory=dict)
 
 

@@ -20,6 +20,7 @@ instability trip is latched: this graph's ``mode_switch`` reports the latch on `
 from __future__ import annotations
 
 import threading
+from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -52,7 +53,7 @@ from dcsms_ros.protocols.responder import StampResponder, Verdict
 class ExcitationNode(Node, Stoppable):
     """ROS adapter around :class:`~dcsms_ros.core.excitation.Excitation`."""
 
-    def __init__(self, node_name: str = topics.EXCITATION_ID, **kwargs) -> None:
+    def __init__(self, node_name: str = topics.EXCITATION_ID, **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)
         super().__init__(node_name, **kwargs)
         self._lock = threading.RLock()
@@ -130,7 +131,8 @@ class ExcitationNode(Node, Stoppable):
         self.exc = None
         self._start_pending = False
 
-    def _on_enable(self, request: SetBool.Request, response: SetBool.Response):
+    def _on_enable(self, request: SetBool.Request,
+                   response: SetBool.Response) -> SetBool.Response:
         with self._lock:
             if request.data and self.tripped:
                 response.success = False

@@ -9,6 +9,8 @@ tuning plus the fade time and input timeout (and the system structure, see :mod:
 
 from __future__ import annotations
 
+from typing import Any
+
 from dcsms_ros.core import topics
 from dcsms_ros.nodes.controller import ControllerNode
 from dcsms_ros.nodes.params import declare_local, feedback_select
@@ -18,7 +20,7 @@ from dcsms_ros.nodes.runtime import main_for
 class FeedbackControllerNode(ControllerNode):
     """ROS adapter around :class:`~dcsms_ros.core.controllers.FeedbackLoop`."""
 
-    def __init__(self, node_name: str = "fb_stage1", **kwargs) -> None:
+    def __init__(self, node_name: str = "fb_stage1", **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)
         super().__init__(node_name, **kwargs)
         stage = int(declare_local(self, "stage", 1, "Stage whose velocity is fed back (1-based)",

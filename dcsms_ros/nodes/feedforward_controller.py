@@ -7,6 +7,8 @@ offers ``/dcsms/ff_stage1/enable``; tuning ``feedforward.*``, with the stage-1 s
 
 from __future__ import annotations
 
+from typing import Any
+
 from dcsms_ros.core import topics
 from dcsms_ros.core.modes import FF_STAGE1
 from dcsms_ros.nodes.controller import ControllerNode
@@ -17,7 +19,7 @@ from dcsms_ros.nodes.runtime import main_for
 class FeedforwardControllerNode(ControllerNode):
     """ROS adapter around :class:`~dcsms_ros.core.controllers.FeedforwardLoop`."""
 
-    def __init__(self, node_name: str = FF_STAGE1, **kwargs) -> None:
+    def __init__(self, node_name: str = FF_STAGE1, **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)
         super().__init__(node_name, **kwargs)
         self.setup(FF_STAGE1, SELECTORS["feedforward_controller"], "ground")

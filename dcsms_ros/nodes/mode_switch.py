@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import threading
 import time
+from functools import partial
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -67,7 +68,7 @@ TRIP_DEPTH = 4000
 class ModeSwitchNode(Node):
     """Supervisor: mode services, trip, stability guard, controller reconciliation."""
 
-    def __init__(self, node_name: str = "mode_switch", **kwargs) -> None:
+    def __init__(self, node_name: str = "mode_switch", **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)
         super().__init__(node_name, **kwargs)
         self.params = NodeConfig(self, SELECTORS["mode_switch"], self._on_change)
@@ -108,7 +109,7 @@ class ModeSwitchNode(Node):
                                  qos_profile_parameter_events, callback_group=services)
         for m in ALL_MODES:
             self.create_service(Trigger, topics.LOCAL.set_mode(m.value),
-                                lambda req, resp, m=m: self._on_set_mode(m, resp),
+                                partial(self._on_set_mode_request, m),
                                 callback_group=services)
         self.create_service(Trigger, topics.LOCAL.reset_trip, self._on_reset_trip,
                             callback_group=services)
@@ -212,6 +213,10 @@ class ModeSwitchNode(Node):
         finally:
             self._switch_lock.release()
 
+    def _on_set_mode_request(self, mode: Mode, request: Trigger.Request,
+                             response: Trigger.Response) -> Trigger.Response:
+        return self._on_set_mode(mode, response)
+
     def _on_set_mode(self, mode: Mode, response: Trigger.Response) -> Trigger.Response:
         response.success, response.message = self.switch(mode)
         self.last_result = response.message
@@ -238,8 +243,10 @@ class ModeSwitchNode(Node):
     # -- trip --------------------------------------------------------------------------------
     def _drain(self) -> None:
         for i, sub in enumerate(self._trip_subs):
-            HotPath.drain(sub, lambda m, i=i: self.feed.add(
-                i, *read_stamped(m, TwistStamped, self.feed.checker.dof)))
+            HotPath.drain(sub, partial(self._feed_trip, i))
+
+    def _feed_trip(self, i: int, buf: bytes) -> None:
+        self.feed.add(i, *read_stamped(buf, TwistStamped, self.feed.checker.dof))
 
     def _judge_locked(self, through_ns: int | None = None) -> None:
         with self._lock:

@@ -35,6 +35,7 @@ from rclpy.exceptions import (
 )
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
 
 from dcsms_ros.core.config import SystemConfig, config_from_flat
 from dcsms_ros.core.schema import GLOBAL_SPECS, ParamSpec, expand_specs
@@ -292,7 +293,7 @@ class FirstSampleGate:
         self._node = node
         self._gate = gate.FirstSampleGate(lockstep, timeout_s)
 
-    def ready(self, pubs: list, observed: list[str]) -> bool:
+    def ready(self, pubs: list[Publisher], observed: list[str]) -> bool:
         """True once the first sample may go out (then always)."""
         if self._gate.open:
             return True
@@ -303,7 +304,7 @@ class FirstSampleGate:
         return ok
 
 
-def publishers_matched(node: Node, pubs: list, observed: list[str]) -> bool:
+def publishers_matched(node: Node, pubs: list[Publisher], observed: list[str]) -> bool:
     """True when each publisher has matched every reader this node's graph view shows, and
     each observed topic among them has a reader outside the graph.
 

@@ -277,12 +277,13 @@ class PlantIO:
     def closing(self) -> list[Publisher]:
         """Write the timing file (benchmarks); returns the publishers to wait for."""
         if self.node.opts.timing_file:
-            np.savez(self.node.opts.timing_file,
-                     t_pub_ns=np.asarray(self._t_pub, dtype=np.int64),
-                     cpu_s=np.asarray(self._cpu), rate_hz=self.sim.cfg.plant.rate_hz,
-                     overruns=self.node.pacer.overruns,
-                     **{f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
-                        for c, v in self._lat.items()})
+            arrays: dict[str, Any] = {
+                "t_pub_ns": np.asarray(self._t_pub, dtype=np.int64),
+                "cpu_s": np.asarray(self._cpu), "rate_hz": self.sim.cfg.plant.rate_hz,
+                "overruns": self.node.pacer.overruns}
+            arrays.update({f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
+                           for c, v in self._lat.items()})
+            np.savez(self.node.opts.timing_file, **arrays)
         return [self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag]
 
 

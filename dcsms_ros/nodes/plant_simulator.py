@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import threading
 import time
+from functools import partial
+from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
@@ -54,7 +56,7 @@ TRIP = "trip"
 class PlantSimulatorNode(Node, Stoppable):
     """ROS adapter around :class:`~dcsms_ros.core.simulator.PlantSimulator`."""
 
-    def __init__(self, node_name: str = "plant_simulator", **kwargs) -> None:
+    def __init__(self, node_name: str = "plant_simulator", **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)
         super().__init__(node_name, **kwargs)
         self.params = NodeConfig(self, SELECTORS["plant_simulator"], self._on_change)
@@ -96,7 +98,7 @@ class PlantSimulatorNode(Node, Stoppable):
                 self._force_subs.append((cid, self.hot.detached(WrenchStamped, topic, sub_qos,
                                                                 raw=True)))
             else:
-                self.hot.subscribe(WrenchStamped, topic, lambda m, c=cid: self._on_force(c, m),
+                self.hot.subscribe(WrenchStamped, topic, partial(self._on_force, cid),
                                    sub_qos, raw=True)
         if gate:
             self.hot.subscribe(Header, topics.LOCAL.trip_checked, self._on_checked,

@@ -203,8 +203,9 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
         pass
     finally:
         if node is not None:
-            if getattr(node, "hot", None) is not None:
-                node.hot.stop()  # the hot thread ends before the node's entities go
+            hot = getattr(node, "hot", None)
+            if hot is not None:
+                hot.stop()  # the hot thread ends before the node's entities go
             close_nodes([node])
         rclpy.try_shutdown(context=ctx)
     return status

@@ -13,6 +13,7 @@ turns into a zero twist for that body (counted).
 from __future__ import annotations
 
 import threading
+from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -46,7 +47,7 @@ MATCH_TIMEOUT_S = 5.0
 class SensorDecouplingNode(Node):
     """ROS adapter around :class:`~dcsms_ros.core.decoupling.Decoupler`."""
 
-    def __init__(self, node_name: str = "sensor_decoupling", **kwargs) -> None:
+    def __init__(self, node_name: str = "sensor_decoupling", **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)
         super().__init__(node_name, **kwargs)
         self.params = NodeConfig(self, SELECTORS["sensor_decoupling"])
