@@ -60,7 +60,7 @@ def _starts(texts: list[str]) -> dict[str, float]:
 def run(args: argparse.Namespace) -> int:
     """Handler: collect, fit, print (or JSON), write files."""
     # deferred: scipy, rosbags and the loop model, not for `dcsms --help`
-    from dcsms_ros.analysis import identify  # noqa: PLC0415 - deferred for --help
+    from dcsms_ros.analysis import identify, identify_fit  # noqa: PLC0415 - deferred for --help
     from dcsms_ros.analysis.frf import KINDS  # noqa: PLC0415 - deferred for --help
 
     kinds = [k.strip() for k in args.use.split(",") if k.strip()]
@@ -71,8 +71,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config) if args.config is not None else None
     col = identify.collect(args.bags, cfg, kinds, progress=ProgressBar())
     params = identify.parse_params(col.cfg, args.params)
-    result = identify.fit(col, params, starts)
-    files = identify.write(result, args.out, args.bags) if args.out is not None else []
+    result = identify_fit.fit(col, params, starts)
+    files = identify_fit.write(result, args.out, args.bags) if args.out is not None else []
     if args.json:
         doc = result.to_dict()
         doc["files"] = [str(f) for f in files]

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from true_plant import TRUE_PLANT
 
-from dcsms_ros.analysis import identify
+from dcsms_ros.analysis import identify, identify_fit
 from dcsms_ros.analysis.export import write_result_bag
 from dcsms_ros.cli import main
 from dcsms_ros.cli.common import default_config_path
@@ -112,7 +112,7 @@ def test_transmissibility_fits_ratios_with_one_parameter_fixed(quiet_bag: Path) 
     masses known the suspensions are identified from the transmissibility alone (the plant is
     the preset here: the fit stays there)."""
     col = identify.collect([quiet_bag])
-    res = identify.fit(col, identify.parse_params(col.cfg, "k1,k2,c1,c2"),
+    res = identify_fit.fit(col, identify.parse_params(col.cfg, "k1,k2,c1,c2"),
                        start={"k1": 1.1e6, "c2": 2500.0})
     np.testing.assert_allclose(res.value[:2], [1.2e6, 1.2e6], rtol=0.05)
 
@@ -134,7 +134,7 @@ def test_sensitivity_from_a_passive_mobility(tmp_path: Path) -> None:
     is identified with the masses known."""
     bag = _scaled_readings_bag(tmp_path / "s", 1.04, Mode.PASSIVE, 20.0)
     col = identify.collect([bag])
-    res = identify.fit(col, identify.parse_params(col.cfg, "sg,k1,c1"))
+    res = identify_fit.fit(col, identify.parse_params(col.cfg, "sg,k1,c1"))
     assert res.value[0] == pytest.approx(100.4 * 1.04, rel=0.005)
 
 
@@ -142,7 +142,7 @@ def test_sensitivity_refused_in_closed_loop(tmp_path: Path) -> None:
     bag = _scaled_readings_bag(tmp_path / "c", 1.0, Mode.FBC, 6.0)
     col = identify.collect([bag])
     with pytest.raises(identify.DcsmsError, match="from FBC segments"):
-        identify.fit(col, identify.parse_params(col.cfg, "sg,k1"))
+        identify_fit.fit(col, identify.parse_params(col.cfg, "sg,k1"))
 
 
 def test_geophone_dynamics_from_the_mobility(tmp_path: Path) -> None:
@@ -155,7 +155,7 @@ def test_geophone_dynamics_from_the_mobility(tmp_path: Path) -> None:
                    excite=excitation_signal(CFG, spec, 60_000, 6))
     write_result_bag(res, tmp_path / "g")
     col = identify.collect([tmp_path / "g"])
-    fit = identify.fit(col, identify.parse_params(col.cfg, "fg,zg,m1,c1"))
+    fit = identify_fit.fit(col, identify.parse_params(col.cfg, "fg,zg,m1,c1"))
     np.testing.assert_allclose(fit.value[:2], [4.0, 0.5], rtol=0.03)
     assert fit.value[2] == pytest.approx(988.8, rel=0.03)
     assert fit.value[3] == pytest.approx(1960.0, rel=0.10)
@@ -178,7 +178,7 @@ def test_sixdof_suspension_per_axis(tmp_path: Path) -> None:
                    excite=excitation_signal(cfg, spec, 40_000, 3))
     write_result_bag(res, tmp_path / "six")
     col = identify.collect([tmp_path / "six"])
-    fit = identify.fit(col, params)
+    fit = identify_fit.fit(col, params)
     assert fit.value[0] == pytest.approx(truth[0], rel=0.03)
     assert fit.value[1] == pytest.approx(truth[1], rel=0.10)
 
