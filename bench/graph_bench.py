@@ -31,7 +31,6 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
-os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 CONFIG = HERE.parent / "config" / "table1.yaml"
 Row = dict[str, Any]
@@ -175,6 +174,9 @@ def _pp(seconds: float, domain: int, executor: str, ping: str = "single") -> dic
 def run(smoke: bool, tmp: Path, rt_seconds: float | None = None) -> list[Row]:
     """Rows: ping-pong variants, lockstep hot/default, real time; all in this run.
     ``rt_seconds``: length of the real-time runs (``--rt-seconds``; default 60 s, smoke 3 s)."""
+    from dcsms_ros.rosenv import keep_discovery_local
+
+    keep_discovery_local()  # this process's probes; the graph's processes get it from deploy
     base = int(os.environ.get("DCSMS_BENCH_DOMAIN", 150 + os.getpid() % 50))
     pp_s = 1.0 if smoke else 5.0
     ls_s = 0.5 if smoke else 5.0

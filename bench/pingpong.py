@@ -23,13 +23,6 @@ from typing import Any
 PING, PONG = "/bench/ping", "/bench/pong"
 
 
-def _env(domain: int) -> dict[str, str]:
-    env = dict(os.environ)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    env["ROS_DOMAIN_ID"] = str(domain)
-    return env
-
-
 def _executor(kind: str) -> Any:
     if kind == "events":
         from rclpy.experimental import EventsExecutor
@@ -78,8 +71,11 @@ def measure(duration_s: float = 5.0, domain: int = 87, executor: str = "single",
     dict
         ``round_trips_per_s``, ``rtt_us_p50``, ``rtt_us_p99``, ``round_trips``, ``executor``.
     """
-    env = _env(domain)
-    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID")})
+    from dcsms_ros.rosenv import keep_discovery_local
+
+    keep_discovery_local()  # the pinger here, the echo process through its environment
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    env = dict(os.environ)
     proc = subprocess.Popen([sys.executable, __file__, "--echo", "--executor", executor],
                             env=env, stdout=subprocess.PIPE, text=True)
     try:

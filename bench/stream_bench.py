@@ -8,7 +8,6 @@ check, simulation and bag included); the peak RSS is the child's ``ru_maxrss``.
 
 from __future__ import annotations
 
-import os
 import shutil
 import subprocess
 import sys
@@ -89,7 +88,6 @@ def run(smoke: bool, tmp: Path) -> list[Row]:
 
 
 if __name__ == "__main__":
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     sys.path.insert(0, str(ROOT))
     import json
 

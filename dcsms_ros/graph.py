@@ -22,7 +22,7 @@ from typing import Any
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
-from dcsms_ros.core.modes import Mode, controller_ids, controller_stage, enabled_controllers
+from dcsms_ros.core.modes import ControllerId, Mode, controller_ids, enabled_controllers
 
 #: Executable (console script, module ``dcsms_ros.nodes.<executable>``) -> node class, for the
 #: composed deployment (``module:Class``).
@@ -239,9 +239,10 @@ def define_graph(cfg: SystemConfig, *, schedule: str = "realtime", mode: Mode = 
         "allow_unstable": bool(allow_unstable)})]
     for cid in controller_ids(n):
         p: dict[str, Any] = {"enabled": cid in on, "allow_unstable": bool(allow_unstable)}
-        if cid.startswith("fb_"):
-            p["stage"] = controller_stage(cid)
-        nodes.append(NodeSpec(cid, "feedback_controller" if cid.startswith("fb_")
+        who = ControllerId.parse(cid)
+        if who.feedback:
+            p["stage"] = who.stage
+        nodes.append(NodeSpec(cid, "feedback_controller" if who.feedback
                               else "feedforward_controller", p, control_path=True))
     nodes += [
         NodeSpec("sensor_decoupling", "sensor_decoupling", control_path=True),

@@ -40,7 +40,7 @@ from dcsms_ros.analysis.bagio import LATCHED_QOS, BagWriter, open_bag
 from dcsms_ros.analysis.reader import CONFIG_TOPIC, config_to_yaml
 from dcsms_ros.core import topics
 from dcsms_ros.core.engine import SimResult
-from dcsms_ros.core.modes import controller_stage
+from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.errors import BagError
 
 #: Samples per topic encoded at once (~100 B each: a few MB per topic and block).
@@ -65,7 +65,7 @@ def sample_times_ns(res: SimResult, t0_ns: int = 0) -> NDArray[np.int64]:
 
 def _force_frame(controller: str) -> str:
     """The stage a controller pushes: FB on stage i -> ``stage<i>``, FF -> ``stage1``."""
-    return f"stage{controller_stage(controller)}"
+    return ControllerId.parse(controller).frame
 
 
 def _excited_stage(res: SimResult) -> int | None:

@@ -37,7 +37,7 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.engine import SimResult, Simulation
 from dcsms_ros.core.excitation import Excitation, ExcitationSpec
 from dcsms_ros.core.model import actuator_count
-from dcsms_ros.core.modes import Mode, controller_ids, controller_stage
+from dcsms_ros.core.modes import ControllerId, Mode, controller_ids
 from dcsms_ros.core.sensors import channel_layout
 from dcsms_ros.errors import DcsmsError
 
@@ -87,7 +87,7 @@ def layouts(cfg: SystemConfig, channel_names: Sequence[str], actuator_names: Seq
     for b in topics.body_names(n):
         out.append(lay(topics.truth_topic(b), cdr.TWIST_STAMPED, b))
         out.append(lay(topics.velocity_topic(b), cdr.TWIST_STAMPED, b))
-    out += [lay(topics.force_topic(c), cdr.WRENCH_STAMPED, f"stage{controller_stage(c)}")
+    out += [lay(topics.force_topic(c), cdr.WRENCH_STAMPED, ControllerId.parse(c).frame)
             for c in controller_ids(n)]
     if exc_stage is not None:
         out.append(lay(topics.EXCITATION, cdr.WRENCH_STAMPED, f"stage{exc_stage + 1}"))

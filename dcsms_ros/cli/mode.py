@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from typing import Any
 
 from dcsms_ros.core import topics
@@ -38,63 +37,60 @@ def run(args: argparse.Namespace) -> int:
     """Handler: call the service(s) and print the answer."""
     mode = parse_mode(args.name) if args.name is not None else None  # ModeError -> exit 2
     # deferred: `dcsms mode BAD` must fail fast, without ROS
-    import rclpy  # noqa: PLC0415 - deferred: ROS
-    from rclpy.context import Context  # noqa: PLC0415 - deferred: ROS
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415 - deferred: ROS
-    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415 - deferred: ROS
+    from rclpy.node import Node  # noqa: PLC0415 - deferred: ROS
     from std_msgs.msg import String  # noqa: PLC0415 - deferred: ROS
     from std_srvs.srv import Trigger  # noqa: PLC0415 - deferred: ROS
 
     from dcsms_ros.nodes import qos  # noqa: PLC0415 - deferred: ROS
+    from dcsms_ros.nodes.bootstrap import (  # noqa: PLC0415 - deferred: ROS
+        ros_context,
+        spin_until,
+    )
 
-    ctx = Context()
-    rclpy.init(args=[], context=ctx, signal_handler_options=SignalHandlerOptions.NO)
-    node = rclpy.create_node(f"dcsms_mode_{os.getpid()}", context=ctx)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
-    try:
-        calls = []
-        if args.reset_trip:
-            calls.append(topics.RESET_TRIP)
-        if mode is not None:
-            calls.append(topics.set_mode_service(mode.value))
-        for name in calls:
-            client = node.create_client(Trigger, name)
-            if not client.wait_for_service(timeout_sec=args.timeout):
-                domain = os.environ.get("ROS_DOMAIN_ID", "0")
-                print(f"dcsms: error: service {name} not available after {args.timeout:g} s; "
-                      f"is `dcsms up` running in ROS_DOMAIN_ID={domain}?", file=sys.stderr)
-                return 1
-            future = client.call_async(Trigger.Request())
-            executor.spin_until_future_complete(future, timeout_sec=args.timeout)
-            result = future.result()
-            if result is None:
-                print(f"dcsms: error: no answer from {name} within {args.timeout:g} s",
-                      file=sys.stderr)
-                return 1
-            print(result.message, flush=True)
-            if not result.success:
-                return 1
-        if not calls:
-            got: list[str] = []
+    calls = ([topics.RESET_TRIP] if args.reset_trip else []) + (
+        [topics.set_mode_service(mode.value)] if mode is not None else [])
+    # signals stay Python's: Ctrl-C raises KeyboardInterrupt (exit 130) through the block,
+    # which still destroys the node and shuts the context down
+    with ros_context([]) as ros:
+        node = Node(f"dcsms_mode_{os.getpid()}", context=ros.context)
+        executor = SingleThreadedExecutor(context=ros.context)
+        executor.add_node(node)
+        try:
+            for name in calls:
+                client = node.create_client(Trigger, name)
+                if not client.wait_for_service(timeout_sec=args.timeout):
+                    domain = os.environ.get("ROS_DOMAIN_ID", "0")
+                    print(f"dcsms: error: service {name} not available after "
+                          f"{args.timeout:g} s; is `dcsms up` running in "
+                          f"ROS_DOMAIN_ID={domain}?", file=sys.stderr)
+                    return 1
+                future = client.call_async(Trigger.Request())
+                spin_until(executor, future.done, timeout_s=args.timeout)
+                result = future.result()
+                if result is None:
+                    print(f"dcsms: error: no answer from {name} within {args.timeout:g} s",
+                          file=sys.stderr)
+                    return 1
+                print(result.message, flush=True)
+                if not result.success:
+                    return 1
+            if not calls:
+                got: list[str] = []
 
-            def on_mode(msg: Any) -> None:
-                got.append(msg.data)
+                def on_mode(msg: Any) -> None:
+                    got.append(msg.data)
 
-            node.create_subscription(String, topics.MODE, on_mode, qos.latched())
-            deadline = time.monotonic() + args.timeout
-            while not got and time.monotonic() < deadline:
-                executor.spin_once(timeout_sec=0.1)
-            if not got:
-                print(f"dcsms: error: no mode on {topics.MODE} within {args.timeout:g} s; is "
-                      f"`dcsms up` running?", file=sys.stderr)
-                return 1
-            print(got[-1])
-        return 0
-    finally:
-        executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+                node.create_subscription(String, topics.MODE, on_mode, qos.latched())
+                if not spin_until(executor, lambda: bool(got), timeout_s=args.timeout):
+                    print(f"dcsms: error: no mode on {topics.MODE} within {args.timeout:g} s; "
+                          f"is `dcsms up` running?", file=sys.stderr)
+                    return 1
+                print(got[-1])
+            return 0
+        finally:
+            executor.shutdown(timeout_sec=1.0)
+            node.destroy_node()
 
 
 __all__ = ["register", "run"]

@@ -23,7 +23,7 @@ from dcsms_ros.core.closed_loop import (
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.lti import Array, CArray, freq_response, num_den
 from dcsms_ros.core.model import plant_state_space
-from dcsms_ros.core.modes import Mode
+from dcsms_ros.core.modes import FEEDBACK, Mode
 from dcsms_ros.core.routh import RouthResult, characteristic_polynomial, routh
 
 TF = Any  # control.TransferFunction (python-control ships no type stubs)
@@ -251,4 +251,4 @@ def loop_margins(cfg: SystemConfig, mode: Mode, axis: str | int = "z",
     a = axis_index(axis, dof)
     return {link.controller: margins(loop_gain(cfg, mode, link, sensors))
             for link in controller_links(cfg, mode, sensors)
-            if link.kind == "fb" and link.dst % dof == a}
+            if link.kind == FEEDBACK and link.dst % dof == a}

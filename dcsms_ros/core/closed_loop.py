@@ -20,7 +20,14 @@ from dcsms_ros.core.controllers import suspension_totals  # same FF axis totals 
 from dcsms_ros.core.filters import feedback_tf, feedforward_tf
 from dcsms_ros.core.lti import Array, ss_to_tf
 from dcsms_ros.core.model import input_slices, plant_state_space, wrench_input_matrix
-from dcsms_ros.core.modes import Mode, enabled_controllers
+from dcsms_ros.core.modes import (
+    FEEDBACK,
+    FEEDFORWARD,
+    FF_STAGE1,
+    ControllerId,
+    Mode,
+    enabled_controllers,
+)
 from dcsms_ros.core.schema import AXES6
 from dcsms_ros.core.sensors import extension_tf, geophone_tf
 from dcsms_ros.errors import ConfigError
@@ -68,18 +75,18 @@ def controller_links(cfg: SystemConfig, mode: Mode, sensors: bool = False) -> li
     links = []
     enabled = enabled_controllers(mode, n)
     for i in range(1, n + 1):
-        name = f"fb_stage{i}"
+        name = str(ControllerId(FEEDBACK, i))
         if name not in enabled:
             continue
         for a, a6 in axes:
             tf = feedback_tf(cfg.feedback[i - 1], a6)
             if not _is_zero(tf):
-                links.append(Link(name, "fb", tf, (i - 1) * dof + a, (i - 1) * dof + a))
-    if "ff_stage1" in enabled and cfg.feedforward.gain != 0.0:
+                links.append(Link(name, FEEDBACK, tf, (i - 1) * dof + a, (i - 1) * dof + a))
+    if FF_STAGE1 in enabled and cfg.feedforward.gain != 0.0:
         totals = suspension_totals(cfg, 1)
         for a, a6 in axes:
             if a6 < 3 and (totals[a6][0] or totals[a6][1]):
-                links.append(Link("ff_stage1", "ff", feedforward_tf(cfg.feedforward,
+                links.append(Link(FF_STAGE1, FEEDFORWARD, feedforward_tf(cfg.feedforward,
                                   *totals[a6]), a, a))
     if sensor is not None:
         links = [Link(k.controller, k.kind, k.tf * sensor, k.src, k.dst) for k in links]
@@ -136,7 +143,7 @@ def closed_loop_ss(cfg: SystemConfig, mode: Mode, sensors: bool = False,
     lzg = np.zeros((nl, dof))
     wout = np.zeros((nd, nl))  # wrench = -wout * controller outputs
     for j, k in enumerate(links):
-        if k.kind == "fb":
+        if k.kind == FEEDBACK:
             lzx[j] = c[k.src]
         else:
             lzg[j, k.src] = 1.0

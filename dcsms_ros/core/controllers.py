@@ -7,8 +7,6 @@ sample whose forces clip restores the filter state from before that sample.
 
 from __future__ import annotations
 
-import re
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -22,6 +20,7 @@ from dcsms_ros.core.filters import (
     to_sos,
 )
 from dcsms_ros.core.geometry import drive_matrix
+from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -267,22 +266,21 @@ class FeedforwardLoop(_Loop):
         super().__init__(cfg, 1, tfs, enabled)
 
 
-_ID = re.compile(r"^(fb|ff)_stage([1-9][0-9]*)$")
-
-
 def make_controller(cfg: SystemConfig, controller_id: str,
                     enabled: bool = False) -> FeedbackLoop | FeedforwardLoop:
-    """Build a controller from its id: ``fb_stage<i>`` (i = 1..N) or ``ff_stage1``."""
-    m = _ID.match(controller_id)
-    if m is None or (m.group(1) == "ff" and m.group(2) != "1"):
-        raise ConfigError(f"unknown controller {controller_id!r}; expected fb_stage<i> or "
-                          f"ff_stage1")
-    i = int(m.group(2))
-    if m.group(1) == "ff":
+    """Build a controller from its id: ``fb_stage<i>`` (i = 1..N) or ``ff_stage1``.
+
+    Raises
+    ------
+    ConfigError
+        An id :meth:`~dcsms_ros.core.modes.ControllerId.parse` rejects, or a stage beyond N.
+    """
+    who = ControllerId.parse(controller_id)
+    if not who.feedback:
         return FeedforwardLoop(cfg, enabled)
-    if i > cfg.plant.num_stages:
+    if who.stage > cfg.plant.num_stages:
         raise ConfigError(f"{cfg.source}: {controller_id}: only {cfg.plant.num_stages} stages")
-    return FeedbackLoop(cfg, i, enabled)
+    return FeedbackLoop(cfg, who.stage, enabled)
 
 
 def retuned(old: FeedbackLoop | FeedforwardLoop, cfg: SystemConfig, controller_id: str,

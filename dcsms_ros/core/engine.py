@@ -19,7 +19,7 @@ from dcsms_ros.core import fastsim
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
-from dcsms_ros.core.modes import Mode, controller_ids, controller_stage, enabled_controllers
+from dcsms_ros.core.modes import ControllerId, Mode, controller_ids, enabled_controllers
 from dcsms_ros.core.simulator import PlantSimulator, check_plant
 from dcsms_ros.core.trip import Trip, TripChecker
 from dcsms_ros.errors import ConfigError
@@ -149,7 +149,7 @@ class Simulation:
         active = enabled_controllers(mode, n)
         ids = controller_ids(n)
         self.ctrls = {cid: make_controller(cfg, cid, enabled=cid in active) for cid in ids}
-        self.body = {cid: (0 if cid.startswith("ff") else controller_stage(cid)) for cid in ids}
+        self.body = {cid: ControllerId.parse(cid).sensed_body for cid in ids}
         self.events = sorted(((int(round(t * cfg.plant.rate_hz)), m) for t, m in schedule),
                              key=lambda e: e[0])
         self._ei = 0

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcsms_ros.core.decoupling import Decoupler
-from dcsms_ros.core.modes import controller_stage
+from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.core.simulator import PlantSimulator
 
 Array = NDArray[np.float64]
@@ -102,7 +102,7 @@ class FastLoop:
                     tuple(np.zeros(c.allocator.n_act) for c in loops),
                     np.array([c.allocator.limit for c in loops]),
                     np.array([body[cid] for cid in ctrls], np.int64),
-                    np.array([controller_stage(cid) - 1 for cid in ctrls], np.int64),
+                    np.array([ControllerId.parse(cid).stage - 1 for cid in ctrls], np.int64),
                     np.zeros((len(loops), sim.dof)))
         self.fade = (np.array([c.fader._n for c in loops], np.int64),
                      np.array([c.fader._k for c in loops], np.int64),

@@ -30,7 +30,7 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.core.filters import SosFilter, sos_state_space
-from dcsms_ros.core.modes import Mode, controller_ids, controller_stage, enabled_controllers
+from dcsms_ros.core.modes import ControllerId, Mode, controller_ids, enabled_controllers
 from dcsms_ros.core.simulator import PlantSimulator, check_plant
 
 Array = NDArray[np.float64]
@@ -193,11 +193,11 @@ def loop_model(cfg: SystemConfig, mode: Mode, breaks: Sequence[Break] = (),
     wu[:, inputs["excite"]] = np.eye(n * dof)
     rx, ru = bld.zeros(len(breaks))
     for j, (cid, loop) in enumerate(ctrls.items()):
-        body = 0 if cid.startswith("ff") else controller_stage(cid)
+        who = ControllerId.parse(cid)
         axes = loop.axes
-        src = [body * dof + int(a) for a in axes]
+        src = [who.sensed_body * dof + int(a) for a in axes]
         yx, yu = bld.filters(loop.filter.coefficients(), offsets[2 + j], (vx[src], vu[src]))
-        stage = controller_stage(cid) - 1
+        stage = who.stage - 1
         for row, a in enumerate(axes):
             dst = stage * dof + int(a)
             hit = [k for k, br in enumerate(breaks) if (br.controller, br.axis) == (cid, a)]

@@ -31,7 +31,7 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.loop_model import Break, LoopModel, Response, loop_model
 from dcsms_ros.core.model import axis_names
-from dcsms_ros.core.modes import Mode, controller_ids, enabled_controllers
+from dcsms_ros.core.modes import ControllerId, Mode, enabled_controllers, feedback_ids
 
 Array = NDArray[np.float64]
 CArray = NDArray[np.complex128]
@@ -73,8 +73,8 @@ def feedback_breaks(cfg: SystemConfig, mode: Mode) -> list[Break]:
     """Every active feedback path of ``mode``: (fb_stage<i>, axis) with a non-zero gain."""
     on = enabled_controllers(mode, cfg.plant.num_stages)
     out = []
-    for cid in controller_ids(cfg.plant.num_stages):
-        if cid in on and cid.startswith("fb"):
+    for cid in feedback_ids(cfg.plant.num_stages):
+        if cid in on:
             out += [Break(cid, int(a)) for a in make_controller(cfg, cid, enabled=True).axes]
     return out
 
@@ -126,7 +126,7 @@ class OpenLoops:
         """Indices of each stage's feedback paths."""
         out: dict[int, list[int]] = {}
         for i, b in enumerate(self.breaks):
-            out.setdefault(int(b.controller.removeprefix("fb_stage")), []).append(i)
+            out.setdefault(ControllerId.parse(b.controller).stage, []).append(i)
         return out
 
 

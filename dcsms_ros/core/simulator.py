@@ -15,7 +15,7 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import Allocator
 from dcsms_ros.core.disturbance import Disturbances
 from dcsms_ros.core.model import DiscretePlant, discretize, plant_state_space
-from dcsms_ros.core.modes import controller_stage
+from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.core.sensors import GeophoneArray, channel_layout, channel_matrix
 from dcsms_ros.errors import ConfigError
 
@@ -170,7 +170,7 @@ class PlantSimulator:
             if not np.all(np.isfinite(w)):
                 self.nonfinite_inputs += 1
                 continue
-            totals[controller_stage(cid) - 1] += w
+            totals[ControllerId.parse(cid).stage - 1] += w
         if excitation is not None:
             if np.all(np.isfinite(excitation)):
                 totals += excitation

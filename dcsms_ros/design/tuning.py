@@ -39,7 +39,7 @@ from dcsms_ros.core.config import SystemConfig, with_overrides
 from dcsms_ros.core.loop_model import loop_model, poles
 from dcsms_ros.core.margins import frequency_grid, margins
 from dcsms_ros.core.model import axis_names
-from dcsms_ros.core.modes import ALL_MODES, Mode, enabled_controllers
+from dcsms_ros.core.modes import ALL_MODES, ControllerId, Mode, enabled_controllers
 from dcsms_ros.core.safety import MIN_GM_DB, MIN_PM_DEG, PEAK_FACTOR
 from dcsms_ros.core.spectra import rms, shaped
 from dcsms_ros.errors import DcsmsError
@@ -158,7 +158,7 @@ def _loop_sets(cfg: SystemConfig) -> dict[frozenset[str], Mode]:
     out: dict[frozenset[str], Mode] = {}
     for m in ALL_MODES:
         fb = frozenset(c for c in enabled_controllers(m, cfg.plant.num_stages)
-                       if c.startswith("fb"))
+                       if ControllerId.parse(c).feedback)
         if fb and fb not in out:
             out[fb] = m
     return out

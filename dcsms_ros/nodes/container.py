@@ -23,25 +23,23 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import signal
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import rclpy
 import yaml
 from rclpy.context import Context
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, GraphSpec, NodeSpec, spec_from_dict
 from dcsms_ros.nodes import hotpath
+from dcsms_ros.nodes.bootstrap import STOP_EXCEPTIONS, ros_context, spin_until
 from dcsms_ros.nodes.recorder import Recorder
-from dcsms_ros.nodes.runtime import POLL_S, close_nodes, config_error, localhost_only, quiesce
+from dcsms_ros.nodes.runtime import close_nodes, config_error, quiesce
 
 #: Executor threads: services and parameters of six nodes, the mode switch's calls.
 EXECUTOR_THREADS = 3
@@ -67,57 +65,50 @@ def create_nodes(spec: GraphSpec, ctx: Context) -> list[Node]:
 def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
         record: Sequence[str] = ()) -> int:
     """Run the composed graph until a signal or the plant's end; see the module notes."""
-    localhost_only()
-    stopped = {"flag": False}
-
-    def on_signal(signum: int, frame: Any) -> None:
-        stopped["flag"] = True
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
     spec = spec_from_dict(yaml.safe_load(graph_file.read_text()))
-    ctx = Context()
-    rclpy.init(args=["--ros-args", "--params-file", str(params_file)], context=ctx,
-               signal_handler_options=SignalHandlerOptions.NO)
-    loop = hotpath.drive(ctx, "driver")
-    nodes: list[Node] = []
-    recorder: Any = None
-    executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS, context=ctx)
     status = 0
-    try:
-        if record:
-            recorder = Recorder(record[0], list(record[1:]) or None, context=ctx,
-                                queue_depth=LOCKSTEP_WRITER_DEPTH if spec.schedule ==
-                                "lockstep" else None)
-            executor.add_node(recorder)
-        nodes = create_nodes(spec, ctx)
-        for nd in nodes:
-            executor.add_node(nd)
-        loop.start(rt_priority)
-        if loop.rt_warning:
-            nodes[-1].get_logger().warning(loop.rt_warning)
-        plant = next((nd for nd in nodes if hasattr(nd, "barrier")), None)
-        while not stopped["flag"] and ctx.ok() and not getattr(plant, "finished", False):
-            executor.spin_once(timeout_sec=POLL_S)
-            if loop.error is not None:
-                raise loop.error
-    except DcsmsError as exc:
-        status = config_error(exc)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        loop.stop()
-        hotpath.undrive(ctx)
-        since = time.time_ns()
-        for nd in reversed(nodes):
-            quiesce(executor, nd, timeout_s=1.0)
-        close_nodes(nodes[::-1])
-        if recorder is not None:
-            recorder.drain(executor, since)
-            print(recorder.finish().text(), flush=True)
-            recorder.destroy_node()
-        executor.shutdown(timeout_sec=2.0)
-        rclpy.try_shutdown(context=ctx)
+    with ros_context(["--ros-args", "--params-file", str(params_file)], signals=True) as ros:
+        ctx = ros.context
+        loop = hotpath.drive(ctx, "driver")
+        nodes: list[Node] = []
+        recorder: Any = None
+        executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS, context=ctx)
+        try:
+            if record:
+                recorder = Recorder(record[0], list(record[1:]) or None, context=ctx,
+                                    queue_depth=LOCKSTEP_WRITER_DEPTH if spec.schedule ==
+                                    "lockstep" else None)
+                executor.add_node(recorder)
+            nodes = create_nodes(spec, ctx)
+            for nd in nodes:
+                executor.add_node(nd)
+            loop.start(rt_priority)
+            if loop.rt_warning:
+                nodes[-1].get_logger().warning(loop.rt_warning)
+            plant = next((nd for nd in nodes if hasattr(nd, "barrier")), None)
+
+            def done() -> bool:
+                if loop.error is not None:
+                    raise loop.error
+                return bool(ros.stop) or getattr(plant, "finished", False)
+
+            spin_until(executor, done)
+        except DcsmsError as exc:
+            status = config_error(exc)
+        except STOP_EXCEPTIONS:
+            pass
+        finally:
+            loop.stop()
+            hotpath.undrive(ctx)
+            since = time.time_ns()
+            for nd in reversed(nodes):
+                quiesce(executor, nd, timeout_s=1.0)
+            close_nodes(nodes[::-1])
+            if recorder is not None:
+                recorder.drain(executor, since)
+                print(recorder.finish().text(), flush=True)
+                recorder.destroy_node()
+            executor.shutdown(timeout_sec=2.0)
     return status
 
 

@@ -35,7 +35,7 @@ from std_srvs.srv import SetBool
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller, retuned
-from dcsms_ros.core.modes import controller_stage
+from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
@@ -104,7 +104,7 @@ class ControllerNode(Node, Stoppable):
             self.loop.enable(True)
         self.dof, self.rate = cfg.plant.dof, cfg.plant.rate_hz
         self.guard = InputGuard(self, f"{cid} velocity", MAX_VELOCITY_MPS)
-        self.writer = StampedWriter(WrenchStamped, f"stage{controller_stage(cid)}", self.dof)
+        self.writer = StampedWriter(WrenchStamped, ControllerId.parse(cid).frame, self.dof)
         self.watchdog = Watchdog(cfg.control.input_timeout_s)
         self.pub = self.create_publisher(WrenchStamped, topics.LOCAL.force(cid),
                                          qos.stream_pub(self.lockstep))

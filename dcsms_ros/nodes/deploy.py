@@ -175,7 +175,7 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     """
     # deferred: the monitor is an rclpy node, and the CLI imports this module (Deployment,
     # RECORDERS) to build its parser, which `dcsms --help` must not pay for
-    from dcsms_ros.nodes.monitor import GraphMonitor  # noqa: PLC0415
+    from dcsms_ros.nodes.monitor import monitoring  # noqa: PLC0415
 
     how.log_dir.mkdir(parents=True, exist_ok=True)
     params_file, graph_file = write_files(spec, how.log_dir)
@@ -195,17 +195,15 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     else:
         graph = children(spec, params_file, how.rt_priority)
     status = 0
-    monitor = None
     try:
         start(kids, how.log_dir, how.verbose)  # recorder first: it must see the first samples
         start(graph, how.log_dir, how.verbose)
         announce(len(graph))
-        monitor = GraphMonitor(spec, how.events, rate_hz)
-        status = monitor.supervise(graph + kids, stop_requested, how.connect_timeout,
-                                   how.expect_finish)
+        # the monitor's node and context go before the graph is stopped
+        with monitoring(spec, how.events, rate_hz) as monitor:
+            status = monitor.supervise(graph + kids, stop_requested, how.connect_timeout,
+                                       how.expect_finish)
     finally:
-        if monitor is not None:
-            monitor.close()
         # the graph first (composed with the recorder inside: its drain too), so the recorder
         # receives everything it published
         stop(graph, RECORDER_STOP_TIMEOUTS if in_process else STOP_TIMEOUTS)

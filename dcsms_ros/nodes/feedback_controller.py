@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 from dcsms_ros.core import topics
+from dcsms_ros.core.modes import FB_STAGE1, FEEDBACK, ControllerId
 from dcsms_ros.nodes.controller import ControllerNode
 from dcsms_ros.nodes.params import declare_local, feedback_select
 from dcsms_ros.nodes.runtime import main_for
@@ -20,12 +21,13 @@ from dcsms_ros.nodes.runtime import main_for
 class FeedbackControllerNode(ControllerNode):
     """ROS adapter around :class:`~dcsms_ros.core.controllers.FeedbackLoop`."""
 
-    def __init__(self, node_name: str = "fb_stage1", **kwargs: Any) -> None:
+    def __init__(self, node_name: str = FB_STAGE1, **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)
         super().__init__(node_name, **kwargs)
         stage = int(declare_local(self, "stage", 1, "Stage whose velocity is fed back (1-based)",
                                   lo=1, hi=8))
-        self.setup(f"fb_stage{stage}", feedback_select(stage), f"stage{stage}")
+        cid = ControllerId(FEEDBACK, stage)
+        self.setup(str(cid), feedback_select(stage), f"stage{stage}")
 
 
 main = main_for(FeedbackControllerNode)

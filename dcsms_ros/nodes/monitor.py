@@ -14,10 +14,10 @@ from __future__ import annotations
 import os
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
@@ -25,7 +25,6 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
-from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -34,6 +33,7 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.modes import Mode, controller_ids
 from dcsms_ros.graph import GraphSpec
 from dcsms_ros.nodes import qos
+from dcsms_ros.nodes.bootstrap import ros_context, spin_until
 
 #: Seconds between status lines on a terminal, and when the output is a file or a pipe.
 STATUS_PERIOD_TTY = 0.5
@@ -48,19 +48,20 @@ class GraphMonitor:
     ----------
     spec : GraphSpec
         The graph (namespace, schedule, stages).
+    context : Context
+        An initialised rclpy context (:func:`monitoring` makes one).
     events : sequence of (time_s, Mode)
         Mode switches at simulated times, sorted.
     rate_hz : float
         Sample rate (lockstep switches land on sample ``round(t * rate)``).
     """
 
-    def __init__(self, spec: GraphSpec, events: Sequence[tuple[float, Mode]] = (),
-                 rate_hz: float = 2000.0) -> None:
+    def __init__(self, spec: GraphSpec, context: Context,
+                 events: Sequence[tuple[float, Mode]] = (), rate_hz: float = 2000.0) -> None:
         self.spec = spec
         self.n = spec.num_stages
         self.names = spec.names
-        self.ctx = Context()
-        rclpy.init(args=[], context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
+        self.ctx = context
         self.node = Node(f"dcsms_up_{os.getpid()}", context=self.ctx)
         self.mode: str | None = None
         self.diag: dict[str, dict[str, str]] = {}
@@ -191,15 +192,12 @@ class GraphMonitor:
                 code = kid.proc.poll() if kid.proc is not None else None
                 if code is None:
                     continue
-                if kid.name in plant_proc and code == 0 and expect_finish:
-                    for _ in range(20):  # its last report may still be in flight
-                        if self.diag.get(PLANT, {}).get("finished") == "True":
-                            break
-                        self.executor.spin_once(timeout_sec=0.05)
-                    if self.diag.get(PLANT, {}).get("finished") == "True":
-                        self._print(self.status_line(), final=True)
-                        print("dcsms up: run finished", flush=True)
-                        return 0
+                # a finished run: the plant's last report may still be in flight
+                if kid.name in plant_proc and code == 0 and expect_finish and spin_until(
+                        self.executor, self._plant_finished, timeout_s=1.0, poll_s=0.05):
+                    self._print(self.status_line(), final=True)
+                    print("dcsms up: run finished", flush=True)
+                    return 0
                 self._print("", final=True)
                 print(f"dcsms up: error: {kid.name} exited with status {code}"
                       + (f"; last log lines ({kid.log}):\n{_tail(kid.log)}" if kid.log else ""),
@@ -224,6 +222,9 @@ class GraphMonitor:
         self._print(self.status_line(), final=True)
         return 0
 
+    def _plant_finished(self) -> bool:
+        return self.diag.get(PLANT, {}).get("finished") == "True"
+
     def _print(self, line: str, final: bool = False) -> None:
         if self.tty:
             sys.stdout.write("\r\x1b[K" + line + ("\n" if final and line else ""))
@@ -232,10 +233,23 @@ class GraphMonitor:
         sys.stdout.flush()
 
     def close(self) -> None:
-        """Destroy the node and shut its context down."""
+        """Stop the executor and destroy the node (the context is the caller's)."""
         self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
-        rclpy.try_shutdown(context=self.ctx)
+
+
+@contextmanager
+def monitoring(spec: GraphSpec, events: Sequence[tuple[float, Mode]] = (),
+               rate_hz: float = 2000.0) -> Iterator[GraphMonitor]:
+    """A :class:`GraphMonitor` on its own rclpy context for the ``with`` block; closed, and the
+    context shut down, when it ends. Signals stay with the caller (``dcsms up`` holds its own
+    stop flag), and the caller's command line is not read as ROS arguments."""
+    with ros_context([]) as ros:
+        monitor = GraphMonitor(spec, ros.context, events, rate_hz)
+        try:
+            yield monitor
+        finally:
+            monitor.close()
 
 
 def _tail(path: Any, lines: int = 15) -> str:

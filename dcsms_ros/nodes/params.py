@@ -38,6 +38,7 @@ from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 
 from dcsms_ros.core.config import SystemConfig, config_from_flat
+from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.core.schema import GLOBAL_SPECS, ParamSpec, expand_specs
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.protocols import gate
@@ -277,7 +278,7 @@ GRAPH_NODES = ("plant_simulator", "sensor_decoupling", "mode_switch", "excitatio
 
 def in_graph(node_name: str) -> bool:
     """True for a node of the graph itself (a subscriber from any other node is an observer)."""
-    return node_name in GRAPH_NODES or node_name.startswith(("fb_stage", "ff_stage"))
+    return node_name in GRAPH_NODES or ControllerId.is_valid(node_name)
 
 
 def outside_graph(node: Node, topic: str) -> bool:

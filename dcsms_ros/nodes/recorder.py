@@ -16,10 +16,11 @@ duplicates the header stamps every ``/dcsms`` topic carries and would cost ~7 % 
 recorder's budget; name it in ``topics`` to record it.
 
 Shutdown (SIGINT, SIGTERM or ``duration_s``): rclpy's own signal handlers are not installed
-(they would invalidate the context before the queues are read); a Python handler sets a flag,
-the spin loop ends, and :meth:`Recorder.drain` takes everything still queued in the DDS readers
-until every active topic shows a message received after the signal, or no message arrived for
-``QUIET_S``, or ``DRAIN_MAX_S`` passed. Then the bag is closed (``metadata.yaml``) and renamed
+(they would invalidate the context before the queues are read); a Python handler sets a flag
+(:func:`~.bootstrap.ros_context` with ``signals=True``), the spin loop ends, and
+:meth:`Recorder.drain` takes everything still queued in the DDS readers until every active
+topic shows a message received after the signal, or no message arrived for ``QUIET_S``, or
+``DRAIN_MAX_S`` passed. Then the bag is closed (``metadata.yaml``) and renamed
 into place: nothing received before the signal is lost.
 
 Parameters: ``out`` (bag directory), ``topics`` (names or fnmatch patterns, default
@@ -31,23 +32,20 @@ from __future__ import annotations
 
 import fnmatch
 import importlib
-import signal
 import sys
 import time
 from collections.abc import Sequence
 from struct import unpack_from
 from typing import Any
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 
 from dcsms_ros.analysis.bagio import BagWriter
 from dcsms_ros.analysis.gaps import Recording, TopicStats
 from dcsms_ros.errors import BagError, DcsmsError
-from dcsms_ros.rosenv import keep_discovery_local
+from dcsms_ros.nodes.bootstrap import STOP_EXCEPTIONS, ros_context, spin_until
 
 NODE_NAME = "dcsms_recorder"
 DEFAULT_TOPICS = ("/dcsms/*",)
@@ -278,18 +276,6 @@ class Recorder(Node):
         return Recording(str(path), list(self.stats.values()), self.missing())
 
 
-class _Stop:
-    """Set by SIGINT/SIGTERM; remembers when (system clock ns, the DDS receive-time clock)."""
-
-    def __init__(self) -> None:
-        self.signum = 0
-        self.at_ns = 0
-
-    def __call__(self, signum: int, frame: Any) -> None:
-        if not self.signum:
-            self.signum, self.at_ns = signum, time.time_ns()
-
-
 def record(out: str, topics: Sequence[str] | None = None, storage: str | None = None,
            duration_s: float | None = None, args: list[str] | None = None,
            queue_depth: int | None = None) -> Recording:
@@ -303,33 +289,26 @@ def record(out: str, topics: Sequence[str] | None = None, storage: str | None = 
     BagError
         The bag cannot be created or finished.
     """
-    keep_discovery_local()
-    stop = _Stop()
-    old = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    context = rclpy.Context()
-    node: Recorder | None = None
-    try:
-        rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
-        node = Recorder(out, topics, storage, duration_s, queue_depth, context=context)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        while not stop.signum and not node.expired():
-            executor.spin_once(timeout_sec=0.1)
-        node.drain(executor, stop.at_ns or time.time_ns())
-        return node.finish()
-    except BaseException:
-        if node is not None:  # keep what was received: a closed bag, not an aborted one
-            try:
-                node.writer.close()
-            except DcsmsError:
-                node.writer.abort()
-        raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        for s, h in old.items():
-            signal.signal(s, h)
+    with ros_context(args, signals=True) as ros:
+        node: Recorder | None = None
+        try:
+            node = rec = Recorder(out, topics, storage, duration_s, queue_depth,
+                                  context=ros.context)
+            executor = SingleThreadedExecutor(context=ros.context)
+            executor.add_node(rec)
+            spin_until(executor, lambda: bool(ros.stop) or rec.expired())
+            node.drain(executor, ros.stop.at_ns or time.time_ns())
+            return node.finish()
+        except BaseException:
+            if node is not None:  # keep what was received: a closed bag, not an aborted one
+                try:
+                    node.writer.close()
+                except DcsmsError:
+                    node.writer.abort()
+            raise
+        finally:
+            if node is not None:
+                node.destroy_node()
 
 
 def recorder_ready(node: Node, topics: Sequence[str]) -> bool:
@@ -343,7 +322,7 @@ def main(args: list[str] | None = None) -> int:
     """``ros2 run dcsms_ros recorder --ros-args -p out:=BAG``: exit 0 after a signal."""
     try:
         report = record("", args=args if args is not None else sys.argv)
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except STOP_EXCEPTIONS:
         return 0
     except DcsmsError as exc:
         print(f"recorder: error: {exc}", file=sys.stderr)

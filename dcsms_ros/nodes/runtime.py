@@ -1,4 +1,4 @@
-"""``main()`` boilerplate shared by every node: init, spin, clean shutdown.
+"""``main()`` of every node process: build the node, spin it, close it (:func:`run`).
 
 Executor: :class:`rclpy.executors.SingleThreadedExecutor`. Measured on this machine: a
 two-process ping-pong of ``JointState`` runs ~2,700 round trips/s with it, while
@@ -8,40 +8,31 @@ experimental one is not used. Nodes that wait on service replies inside a callba
 subscriptions do not go through the executor at all: a node's :class:`~.hotpath.HotPath`
 thread (started here if the node did not start it) serves them from a minimal wait set.
 
-Shutdown: rclpy's signal handlers are not installed. SIGINT and SIGTERM set a flag; the spin
-loop ends, the node is destroyed and the context shut down: exit status 0, no traceback. A
-configuration error while building the node is one line on stderr and exit status 2.
+Start and shutdown go through :func:`.bootstrap.ros_context`: SIGINT and SIGTERM set a flag
+(rclpy's handlers are not installed), the spin loop ends, the node publishes its final reports
+(:func:`close_nodes`) and is destroyed, and the context is shut down: exit status 0, no
+traceback. A configuration error while building the node is one line on stderr and exit
+status 2.
 """
 
 from __future__ import annotations
 
 import os
-import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import rclpy
-from rclpy.context import Context
 from rclpy.duration import Duration
-from rclpy.executors import (
-    Executor,
-    ExternalShutdownException,
-    MultiThreadedExecutor,
-    SingleThreadedExecutor,
-)
+from rclpy.executors import Executor, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 
 from dcsms_ros import graph
 from dcsms_ros.errors import DcsmsError
-from dcsms_ros.rosenv import keep_discovery_local
+from dcsms_ros.nodes.bootstrap import STOP_EXCEPTIONS, ros_context, spin_until
 
 #: Exit status of a configuration error (the CLI's convention).
 EXIT_CONFIG = 2
-#: How often (s) the spin loop looks at the stop flag.
-POLL_S = 0.1
 
 
 #: SCHED_FIFO priority (1-99) for every thread of a node process; unset or 0 keeps the default
@@ -70,11 +61,6 @@ def apply_rt_priority() -> str | None:
     return None
 
 
-def localhost_only() -> None:
-    """Keep discovery on this machine unless the user chose otherwise."""
-    keep_discovery_local()
-
-
 class Stoppable:
     """Mixin for nodes that can end their own process (e.g. the plant after ``duration_s``)."""
 
@@ -100,16 +86,20 @@ def wait_acked(pubs: Sequence[Any], total_s: float = ACK_WAIT_S) -> None:
         pub.wait_for_all_acked(Duration(seconds=max(end - time.monotonic(), 0.0)))
 
 
-def spin_until_stopped(node: Node, executor: Executor, stop: Callable[[], bool]) -> None:
-    """Spin ``node`` until ``stop()`` is true, the node finished, or the context shut down."""
+def spin_node(node: Node, executor: Executor, stop: Callable[[], bool]) -> None:
+    """Spin ``node`` (and its hot path) until ``stop()`` is true, the node finished, or the
+    context shut down; a failing hot-path handler raises here, as a failing callback would."""
     executor.add_node(node)
     hot = getattr(node, "hot", None)
     if hot is not None:
         hot.start()
-    while not stop() and not getattr(node, "finished", False) and node.context.ok():
-        executor.spin_once(timeout_sec=POLL_S)
+
+    def done() -> bool:
         if hot is not None and hot.error is not None:
-            raise hot.error  # a failing hot-path handler ends the node as a callback would
+            raise hot.error
+        return stop() or getattr(node, "finished", False)
+
+    spin_until(executor, done)
 
 
 def quiesce(executor: Executor, node: Node, timeout_s: float = 2.0) -> None:
@@ -170,44 +160,34 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
     int
         0 after a signal or a normal finish, 2 after a configuration error.
     """
-    localhost_only()
     rt_warning = apply_rt_priority()
-    stopped = {"flag": False}
-
-    def on_signal(signum: int, frame: Any) -> None:
-        stopped["flag"] = True
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
-    ctx = Context()
-    rclpy.init(args=list(args) if args is not None else sys.argv, context=ctx,
-               signal_handler_options=SignalHandlerOptions.NO)
-    node: Node | None = None
     status = 0
-    try:
-        node = factory(context=ctx)
-        if rt_warning:
-            node.get_logger().warning(rt_warning)
-        executor: Executor = (MultiThreadedExecutor(num_threads=4, context=ctx) if multithreaded
-                              else SingleThreadedExecutor(context=ctx))
+    with ros_context(args, signals=True) as ros:
+        node: Node | None = None
         try:
-            spin_until_stopped(node, executor, lambda: stopped["flag"])
+            node = factory(context=ros.context)
+            if rt_warning:
+                node.get_logger().warning(rt_warning)
+            executor: Executor = (
+                MultiThreadedExecutor(num_threads=4, context=ros.context) if multithreaded
+                else SingleThreadedExecutor(context=ros.context))
+            try:
+                spin_node(node, executor, lambda: bool(ros.stop))
+            finally:
+                # let callbacks still running in worker threads end before the node goes away
+                if multithreaded:
+                    quiesce(executor, node)
+                executor.shutdown(timeout_sec=2.0)
+        except DcsmsError as exc:
+            status = config_error(exc)
+        except STOP_EXCEPTIONS:
+            pass
         finally:
-            # let callbacks still running in worker threads end before the node goes away
-            if multithreaded:
-                quiesce(executor, node)
-            executor.shutdown(timeout_sec=2.0)
-    except DcsmsError as exc:
-        status = config_error(exc)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            hot = getattr(node, "hot", None)
-            if hot is not None:
-                hot.stop()  # the hot thread ends before the node's entities go
-            close_nodes([node])
-        rclpy.try_shutdown(context=ctx)
+            if node is not None:
+                hot = getattr(node, "hot", None)
+                if hot is not None:
+                    hot.stop()  # the hot thread ends before the node's entities go
+                close_nodes([node])
     return status
 
 

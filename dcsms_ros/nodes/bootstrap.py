@@ -1,0 +1,146 @@
+"""The one way this package starts and stops rclpy: context, signals, spin loop, shutdown.
+
+Every process that talks ROS goes through :func:`ros_context`: the node processes
+(:func:`.runtime.run`), the composed graph (:mod:`.container`), the recorder
+(:func:`.recorder.record`), the supervisor of ``dcsms up`` (:func:`.monitor.monitoring`) and the
+service client of ``dcsms mode``. It holds Jazzy's rules in one place:
+
+- Discovery stays on this machine unless the user chose a range
+  (:func:`dcsms_ros.rosenv.keep_discovery_local`), set before the first participant exists.
+- ``rclpy.init()`` is not a context manager; :func:`ros_context` is, and calls
+  ``rclpy.try_shutdown`` on its own :class:`~rclpy.context.Context` however the block ends.
+- rclpy's signal handlers are never installed (``SignalHandlerOptions.NO``): on SIGINT they shut
+  the context down inside the handler, before the nodes publish their final reports, the
+  recorder drains its readers or the composed graph lets its callbacks finish. With
+  ``signals=True`` SIGINT and SIGTERM only set :class:`StopFlag` and :func:`spin_until` returns;
+  the previous handlers come back on exit. ``ros2 run`` forwards Ctrl-C to its process group
+  only, and ``dcsms up`` signals each child itself, so every node process handles both signals.
+  With ``signals=False`` the caller's handlers stay (``dcsms up`` keeps its own flag; in
+  ``dcsms mode`` Ctrl-C raises ``KeyboardInterrupt``, exit 130).
+- A ``main()`` still counts :data:`STOP_EXCEPTIONS` as a normal end (exit status 0):
+  ``KeyboardInterrupt``, and ``ExternalShutdownException`` when the context was shut down
+  under a spinning executor.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.signals import SignalHandlerOptions
+
+from dcsms_ros.rosenv import keep_discovery_local
+
+#: Exceptions that end a ROS process normally: Ctrl-C where rclpy or Python raised it, and a
+#: context shut down under a spinning executor.
+STOP_EXCEPTIONS: tuple[type[BaseException], ...] = (KeyboardInterrupt, ExternalShutdownException)
+#: Longest wait (s) of one :func:`spin_until` round, so a stop request is seen that soon.
+POLL_S = 0.1
+#: The signals that ask a process to stop.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class StopFlag:
+    """Signal handler that records the first stop request instead of raising.
+
+    ``signum`` is 0 until a signal arrives; ``at_ns`` is then its system-clock time (ns, the
+    clock of DDS receive times: the recorder keeps what was received before it). True once set.
+    """
+
+    def __init__(self) -> None:
+        self.signum = 0
+        self.at_ns = 0
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        if not self.signum:
+            self.signum, self.at_ns = signum, time.time_ns()
+
+    def __bool__(self) -> bool:
+        return self.signum != 0
+
+
+@dataclass(frozen=True)
+class RosSession:
+    """What :func:`ros_context` yields: the initialised context and the stop flag (never set
+    when the session does not handle signals)."""
+
+    context: Context
+    stop: StopFlag = field(default_factory=StopFlag)
+
+
+@contextmanager
+def ros_context(args: Sequence[str] | None = None, signals: bool = False
+                ) -> Iterator[RosSession]:
+    """An initialised rclpy context for the ``with`` block, shut down when it ends.
+
+    Parameters
+    ----------
+    args : sequence of str, optional
+        Command line for ``rclpy.init`` (``--ros-args`` ...); None: ``sys.argv``, as rclpy.
+        In-process clients pass ``[]`` so that the caller's own options are not read.
+    signals : bool
+        True: SIGINT and SIGTERM set the session's :class:`StopFlag` until the block ends
+        (a node process, the recorder). False: leave the process's handlers alone.
+
+    Yields
+    ------
+    RosSession
+        ``context`` for the nodes and executors; ``stop`` for the spin loop.
+
+    Notes
+    -----
+    Exceptions pass through unchanged (a ``main()`` catches :data:`STOP_EXCEPTIONS`); the
+    nodes must be destroyed inside the block, before the context goes.
+    """
+    keep_discovery_local()
+    session = RosSession(Context())
+    old = {s: signal.signal(s, session.stop) for s in STOP_SIGNALS} if signals else {}
+    try:
+        rclpy.init(args=None if args is None else list(args), context=session.context,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        yield session
+    finally:
+        rclpy.try_shutdown(context=session.context)
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float | None = None,
+               poll_s: float = POLL_S) -> bool:
+    """Run ``executor``'s callbacks until ``done()``, the context's shutdown or ``timeout_s``.
+
+    Parameters
+    ----------
+    executor : Executor
+        With its nodes added.
+    done : callable
+        Asked before every round; it may raise to end the loop with an error (a failed hot
+        path does).
+    timeout_s : float, optional
+        Longest total wait, s; None: no limit.
+    poll_s : float
+        Longest wait of one round, s (how late a stop request or the deadline is seen).
+
+    Returns
+    -------
+    bool
+        ``done()`` at the end (False after a timeout or a shutdown).
+    """
+    end = None if timeout_s is None else time.monotonic() + timeout_s
+    while not done() and executor.context.ok():
+        left = poll_s if end is None else min(poll_s, end - time.monotonic())
+        if left <= 0.0:
+            break
+        executor.spin_once(timeout_sec=left)
+    return done()
+
+
+__all__ = ["POLL_S", "STOP_EXCEPTIONS", "STOP_SIGNALS", "RosSession", "StopFlag", "ros_context",
+           "spin_until"]
