@@ -90,7 +90,11 @@ def test_killed_controller_is_zeroed_then_rejoins_without_kick(victim, ctx, cfg,
             assert all(x in allowed for x in f_after), f"{victim}'s force still applied"
         if mode != Mode.FFC:  # the other stage's loop is on: its force is still applied
             assert np.abs(f_other).max() > 0.0, "the other loops stopped"
-        moved = {c: int(probe.value(c, "samples")) - n for c, n in counts0.items()}
+        # their own reports made after the kill (1 Hz: the cached ones may predate it)
+        probe.wait(lambda: all(probe.status_after(c, after) for c in others), 5.0,
+                   "reports of the other loops after the kill")
+        moved = {c: int(probe.status_after(c, after)[1]["samples"]) - n
+                 for c, n in counts0.items()}
         assert all(v > 0 for v in moved.values()), f"the other loops stopped: {moved}"
         steady = _max_step(k_before[:-40], f_before[:-40])
         # restart with the same command line (enabled: true): it must fade in, not kick
