@@ -65,8 +65,8 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
 typecheck: $(STAMP)
-	$(VENV)/bin/mypy dcsms_ros/core dcsms_ros/analysis dcsms_ros/design dcsms_ros/protocols dcsms_ros/graph.py \
-	  dcsms_ros/cli
+	$(VENV)/bin/mypy dcsms_ros/core dcsms_ros/cdr dcsms_ros/analysis dcsms_ros/design dcsms_ros/protocols \
+	  dcsms_ros/graph.py dcsms_ros/cli
 
 # pytest exits 5 when it collects nothing; that fails the target like any other error.
 pytest: $(STAMP)
