@@ -42,7 +42,7 @@ def long_bag(path: Path, minutes: float, fs: float = 2000.0) -> tuple[Path, int]
     import numpy as np
     from scipy import signal
 
-    from dcsms_ros.analysis import cdr
+    from dcsms_ros import cdr
     from dcsms_ros.analysis.bagio import LATCHED_QOS, open_bag
     from dcsms_ros.analysis.reader import CONFIG_TOPIC, config_to_yaml
     from dcsms_ros.core.config import load_config
@@ -84,7 +84,7 @@ def _rosbags_loop(path: Path) -> float:
     """Messages per second of a per-message rosbags ``deserialize_cdr`` loop (the baseline)."""
     from rosbags.rosbag2 import Reader
 
-    from dcsms_ros.analysis.cdr import typestore
+    from dcsms_ros.cdr import typestore
 
     ts = typestore()
     t0 = time.perf_counter()

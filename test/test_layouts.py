@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros import cdr
 from dcsms_ros.cli.common import default_config_path
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import load_config

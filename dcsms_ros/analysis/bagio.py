@@ -28,7 +28,7 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys.base import TypesysError
 
 from dcsms_ros.analysis import staging
-from dcsms_ros.analysis.cdr import typestore
+from dcsms_ros.cdr import typestore
 from dcsms_ros.errors import BagError
 
 #: rosbag2 metadata version. Jazzy (rosbag2 0.26) writes and reads version 9 (QoS profiles as a

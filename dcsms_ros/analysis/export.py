@@ -22,7 +22,7 @@ bag and a graph recording hold the same topics. ``/diagnostics`` is not synthesi
 batch run's fault counters are returned by :func:`export_result` instead). A 1-DOF run fills
 only the z component (index 2) of each twist and wrench.
 
-Messages are encoded with the numpy codecs of :mod:`dcsms_ros.analysis.cdr` in blocks of
+Messages are encoded with the numpy codecs of :mod:`dcsms_ros.cdr` in blocks of
 ``block`` samples per topic (bounded memory on long runs); within a block, topics are written
 one after the other, which MCAP and SQLite both index by time.
 """
@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros import cdr
 from dcsms_ros.analysis.bagio import LATCHED_QOS, BagWriter, open_bag
 from dcsms_ros.analysis.reader import CONFIG_TOPIC, config_to_yaml
 from dcsms_ros.core import topics

@@ -1,13 +1,13 @@
 """A vectorized rosbag2 MCAP writer: blocks of fixed-layout messages without per-message Python.
 
-The per-sample topics of a simulation keep one CDR layout each (:mod:`.cdr`), so a block of K
-samples of T topics is one byte matrix: row i holds the T message records of sample i side by
-side (each a 31-byte MCAP message header, then the CDR), built column-wise with numpy. The
-rows are cut into chunks (zstd), each followed by its per-channel message indexes (``(log_time,
-offset)`` pairs computed from the row layout, not message by message); the summary (schemas,
-channels, chunk indexes, statistics, a ``rosbag2`` metadata record and its index, summary
-offsets) and the footer close the file, and ``metadata.yaml`` is written as rosbag2 (version
-9) and rosbags write it, so ``ros2 bag info``, rosbags, the ``mcap`` library and
+The per-sample topics of a simulation keep one CDR layout each (:mod:`dcsms_ros.cdr`), so a
+block of K samples of T topics is one byte matrix: row i holds the T message records of sample
+i side by side (each a 31-byte MCAP message header, then the CDR), built column-wise with
+numpy. The rows are cut into chunks (zstd), each followed by its per-channel message indexes
+(``(log_time, offset)`` pairs computed from the row layout, not message by message); the
+summary (schemas, channels, chunk indexes, statistics, a ``rosbag2`` metadata record and its
+index, summary offsets) and the footer close the file, and ``metadata.yaml`` is written as
+rosbag2 (version 9) and rosbags write it, so ``ros2 bag info``, rosbags, the ``mcap`` library and
 :mod:`.mcapchunks` read the bag. The bag is built in ``<out>.partial/`` and renamed to ``<out>``
 only after a clean close (:mod:`.bagio`'s rule): there is never a bag without metadata.
 
@@ -31,7 +31,7 @@ import yaml
 
 from dcsms_ros import __version__
 from dcsms_ros.analysis import staging
-from dcsms_ros.analysis.cdr import typestore
+from dcsms_ros.cdr import typestore
 from dcsms_ros.errors import BagError
 
 MAGIC = b"\x89MCAP0\r\n"

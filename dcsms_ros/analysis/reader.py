@@ -29,7 +29,8 @@ import numpy as np
 import yaml
 from rosbags.rosbag2 import Reader
 
-from dcsms_ros.analysis import cdr, mcapchunks
+from dcsms_ros import cdr
+from dcsms_ros.analysis import mcapchunks
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import (
     SystemConfig,

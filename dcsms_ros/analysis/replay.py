@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from rosbags.rosbag2 import Reader
 from scipy import signal
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros import cdr
 from dcsms_ros.core import topics
 from dcsms_ros.errors import BagError
 

@@ -2,8 +2,8 @@
 
 :class:`~dcsms_ros.core.engine.Simulation` returns the run block by block (times continue); a
 writer thread encodes each block's topics as byte matrices (the fixed CDR layouts of
-:mod:`.cdr`) and hands them to the vectorized MCAP writer (:mod:`.mcapwrite`; SQLite 3 goes
-through :mod:`.bagio`), while the main thread simulates the next block (the compiled loop
+:mod:`dcsms_ros.cdr`) and hands them to the vectorized MCAP writer (:mod:`.mcapwrite`; SQLite 3
+goes through :mod:`.bagio`), while the main thread simulates the next block (the compiled loop
 releases the GIL). At most two blocks are alive at once, so memory stays bounded whatever the
 duration. The bag holds the topics :func:`.export.export_result` writes, in the same order and
 with the same bytes.
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros import cdr
 from dcsms_ros.analysis.bagio import LATCHED_QOS, BagWriter
 from dcsms_ros.analysis.export import to_six
 from dcsms_ros.analysis.mcapwrite import MESSAGE_HEADER, McapBagWriter, RowTemplate
@@ -53,11 +53,11 @@ DISK_MARGIN = 64 << 20
 
 
 @dataclass
-class _Layout:
+class TopicLayout:
+    """One per-sample topic and the layout of its messages."""
+
     topic: str
-    msgtype: str
-    template: NDArray[np.uint8]
-    fields: dict[str, tuple[int, str, int]]
+    layout: cdr.Layout
 
 
 @dataclass
@@ -74,12 +74,11 @@ class StreamResult:
 
 
 def layouts(cfg: SystemConfig, channel_names: Sequence[str], actuator_names: Sequence[str],
-            clock: bool = False, exc_stage: int | None = None) -> list[_Layout]:
+            clock: bool = False, exc_stage: int | None = None) -> list[TopicLayout]:
     """The per-sample topics of a run, in the order a sample's messages are written
     (``exc_stage``: 0-based stage of an excitation, whose topic then follows the forces)."""
-    def lay(topic: str, msgtype: str, *args: Any) -> _Layout:
-        m = cdr.message_layout(msgtype, *args)
-        return _Layout(topic, msgtype, np.frombuffer(bytes(m.buf), np.uint8), m.fields)
+    def lay(topic: str, msgtype: str, *args: Any) -> TopicLayout:
+        return TopicLayout(topic, cdr.message_layout(msgtype, *args))
 
     n = cfg.plant.num_stages
     out = [lay(topics.SENSORS_RAW, cdr.JOINT_STATE, "", channel_names,
@@ -117,28 +116,10 @@ def _values(res: SimResult, clock: bool, exc_stage: int | None = None
     return out
 
 
-def encode_rows(lay: _Layout, t_ns: NDArray[np.int64], values: dict[str, NDArray[Any]],
-                out: NDArray[np.uint8] | None = None) -> NDArray[np.uint8]:
-    """K messages of one fixed layout as a (K, R) uint8 matrix (stamps from ``t_ns``);
-    ``out``: a (K, R) view to write into (e.g. columns of a bag block), template included."""
-    k = t_ns.size
-    if out is None:
-        out = np.empty((k, lay.template.size), np.uint8)
-        out[:] = lay.template
-    sec = (t_ns // 1_000_000_000).astype("<i4")
-    vals = dict(values, sec=sec, nanosec=(t_ns - sec.astype(np.int64) * 1_000_000_000)
-                .astype("<u4"))
-    for name, (off, dtype, count) in lay.fields.items():
-        if count:
-            col = np.ascontiguousarray(np.reshape(vals[name], (k, count)), dtype=dtype)
-            out[:, off:off + col.itemsize * count] = col.view(np.uint8).reshape(k, -1)
-    return out
-
-
 def bytes_per_sample(cfg: SystemConfig) -> int:
     """Uncompressed MCAP bytes of one sample's messages."""
     n_ch, n_act = _channel_and_actuator_counts(cfg)
-    return sum(MESSAGE_HEADER + lay.template.size for lay in layouts(
+    return sum(MESSAGE_HEADER + t.layout.size for t in layouts(
         cfg, [f"c{i:02d}" for i in range(n_ch)], [f"stage1/a{i:02d}" for i in range(n_act)]))
 
 
@@ -177,7 +158,7 @@ class _Writer:
         self.cfg, self.clock, self.storage, self.out = cfg, clock, storage, out
         self.exc_stage = exc_stage
         self.bag: Any = None
-        self.lay: list[_Layout] = []
+        self.lay: list[TopicLayout] = []
         self._tpl: RowTemplate | None = None
         self._modes: list[tuple[int, str]] = []  # mode changes not written yet (a trip's
         # Passive may fall on the next block's first sample)
@@ -225,7 +206,7 @@ class _Writer:
         self.bag.add_topic(CONFIG_TOPIC, cdr.STRING, LATCHED_QOS)
         self.bag.add_topic(topics.MODE, cdr.STRING, LATCHED_QOS)
         for lay in self.lay:
-            self.bag.add_topic(lay.topic, lay.msgtype)
+            self.bag.add_topic(lay.topic, lay.layout.msgtype)
 
     def _write(self, res: SimResult) -> None:
         dt_ns = int(round(self.cfg.plant.dt * 1e9))
@@ -238,16 +219,17 @@ class _Writer:
         names = [lay.topic for lay in self.lay]
         if isinstance(self.bag, McapBagWriter):  # encoded in place, in the bag's rows
             if self._tpl is None:
-                self._tpl = self.bag.rows_template(names, [lay.template for lay in self.lay])
+                self._tpl = self.bag.rows_template(names, [t.layout.template
+                                                           for t in self.lay])
             tpl = self._tpl
             buf = tpl.encode(t_ns)
-            for lay, v, o in zip(self.lay, _values(res, self.clock, self.exc_stage),
-                                 tpl.offsets, strict=True):
+            for t, v, o in zip(self.lay, _values(res, self.clock, self.exc_stage),
+                               tpl.offsets, strict=True):
                 start = o + MESSAGE_HEADER
-                encode_rows(lay, t_ns, v, buf[:, start:start + lay.template.size])
+                cdr.encode_rows(t.layout, t_ns, v, buf[:, start:start + t.layout.size])
             rows = [buf]
         else:
-            rows = [encode_rows(lay, t_ns, v) for lay, v in zip(
+            rows = [cdr.encode_rows(t.layout, t_ns, v) for t, v in zip(
                 self.lay, _values(res, self.clock, self.exc_stage), strict=True)]
         # a mode message goes in at its sample, so the bag stays in time order
         end = k0 + t_ns.size
@@ -347,5 +329,5 @@ def _stream(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path, seed: i
     return StreamResult(steps, counts, counters, modes, sim.trip, refused)
 
 
-__all__ = ["BLOCK_S", "MAX_DURATION_S", "StreamResult", "bytes_per_sample", "check_run",
-           "encode_rows", "layouts", "stream_bag"]
+__all__ = ["BLOCK_S", "MAX_DURATION_S", "StreamResult", "TopicLayout", "bytes_per_sample",
+           "check_run", "layouts", "stream_bag"]

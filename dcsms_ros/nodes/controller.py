@@ -2,16 +2,16 @@
 
 One sample: ``velocity/<body>`` (TwistStamped) -> ``loop.step`` -> ``force/<id>``
 (WrenchStamped, frame_id = the stage the actuators push, stamp = the input's stamp), both as
-serialized CDR (:mod:`.wire`), names relative to the graph's namespace. The node publishes for
-every sample, zero while disabled, because the lockstep plant waits for every controller. A
-repeated stamp (lockstep retransmission) is answered from the cache, an older one is dropped
-(:class:`~dcsms_ros.protocols.responder.StampResponder`). ``~/enable`` (std_srvs/SetBool) fades
-the loop in or out over ``control.fade_time_s``; parameter ``enabled`` starts it at full gain in
-lockstep, as the batch engine starts the controllers of its initial mode, and fades it in from
-zero in real time (a restarted controller rejoins a running plant without a kick): the loop
-starts, primed, only once the plant's reader matched the force publisher (zero force until
-then). A tuning change the model calls unstable in the active mode is rejected
-(:mod:`.stability`).
+serialized CDR (:mod:`dcsms_ros.cdr`), names relative to the graph's namespace. The node
+publishes for every sample, zero while disabled, because the lockstep plant waits for every
+controller. A repeated stamp (lockstep retransmission) is answered from the cache, an older one
+is dropped (:class:`~dcsms_ros.protocols.responder.StampResponder`). ``~/enable``
+(std_srvs/SetBool) fades the loop in or out over ``control.fade_time_s``; parameter ``enabled``
+starts it at full gain in lockstep, as the batch engine starts the controllers of its initial
+mode, and fades it in from zero in real time (a restarted controller rejoins a running plant
+without a kick): the loop starts, primed, only once the plant's reader matched the force
+publisher (zero force until then). A tuning change the model calls unstable in the active mode
+is rejected (:mod:`.stability`).
 
 Real time only: a :class:`~dcsms_ros.protocols.pacer.Watchdog` publishes zero force while no
 input arrived for ``control.input_timeout_s`` (steady wall clock; on the hot thread, whose wait
@@ -32,6 +32,7 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from std_srvs.srv import SetBool
 
+from dcsms_ros.cdr import TWIST_STAMPED, WRENCH_STAMPED, StampedWriter, read_stamped
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller, retuned
@@ -50,7 +51,6 @@ from dcsms_ros.nodes.params import (
 )
 from dcsms_ros.nodes.runtime import Stoppable
 from dcsms_ros.nodes.stability import StabilityGuard
-from dcsms_ros.nodes.wire import StampedWriter, read_stamped
 from dcsms_ros.protocols.pacer import Watchdog
 from dcsms_ros.protocols.responder import StampResponder, Verdict
 
@@ -104,7 +104,7 @@ class ControllerNode(Node, Stoppable):
             self.loop.enable(True)
         self.dof, self.rate = cfg.plant.dof, cfg.plant.rate_hz
         self.guard = InputGuard(self, f"{cid} velocity", MAX_VELOCITY_MPS)
-        self.writer = StampedWriter(WrenchStamped, ControllerId.parse(cid).frame, self.dof)
+        self.writer = StampedWriter(WRENCH_STAMPED, ControllerId.parse(cid).frame, self.dof)
         self.watchdog = Watchdog(cfg.control.input_timeout_s)
         self.pub = self.create_publisher(WrenchStamped, topics.LOCAL.force(cid),
                                          qos.stream_pub(self.lockstep))
@@ -139,7 +139,7 @@ class ControllerNode(Node, Stoppable):
 
     # -- the loop ----------------------------------------------------------------------------
     def _on_velocity(self, buf: bytes) -> None:
-        ns, x = read_stamped(buf, TwistStamped, self.dof)
+        ns, x = read_stamped(buf, TWIST_STAMPED, self.dof)
         # implausible (non-finite, > 10 m/s): counted and logged here, NaN for the loop, which
         # answers it with zero force (lockstep goes on) and leaves its filters untouched
         x = self.guard.clean(x, np.nan)

@@ -31,6 +31,7 @@ from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
+from dcsms_ros.cdr import WRENCH_STAMPED, JointStateReader, StampedWriter
 from dcsms_ros.core import topics
 from dcsms_ros.core.excitation import Excitation, check_specs, parse_spec
 from dcsms_ros.errors import ConfigError
@@ -46,7 +47,6 @@ from dcsms_ros.nodes.params import (
     declare_schedule,
 )
 from dcsms_ros.nodes.runtime import Stoppable, main_for
-from dcsms_ros.nodes.wire import StampedWriter, read_joint_state
 from dcsms_ros.protocols.responder import StampResponder, Verdict
 
 
@@ -81,7 +81,8 @@ class ExcitationNode(Node, Stoppable):
         self.rate = cfg.plant.rate_hz
         self.seed = cfg.disturbance.seed
         self.stage = self.specs[0].stage
-        self.writer = StampedWriter(WrenchStamped, f"stage{self.stage}", cfg.plant.dof)
+        self.writer = StampedWriter(WRENCH_STAMPED, f"stage{self.stage}", cfg.plant.dof)
+        self.reader = JointStateReader()
         self._zero = np.zeros(cfg.plant.dof)
         self.exc: Excitation | None = None
         self.k0 = 0  # sample the excitation was started on
@@ -108,7 +109,7 @@ class ExcitationNode(Node, Stoppable):
         return self.exc is not None or self._start_pending
 
     def _on_sample(self, buf: bytes) -> None:
-        ns = read_joint_state(buf)[0]
+        ns = self.reader.read(buf)[0]
         verdict = self.answers.judge(ns)
         if verdict is Verdict.REPEAT and self.answers.cache is not None:
             self.pub.publish(self.answers.cache)  # a lockstep retransmission: the same answer

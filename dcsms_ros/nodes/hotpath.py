@@ -118,7 +118,7 @@ class HotPath:
     def subscribe(self, msg_type: Any, topic: str, handler: Callable[[Any], None],
                   qos: QoSProfile, raw: bool = False) -> Subscription:
         """A subscription served by the hot loop (or by the executor when the path is off);
-        ``raw``: the handler gets the serialized bytes (see :mod:`.wire`)."""
+        ``raw``: the handler gets the serialized bytes (see :mod:`dcsms_ros.cdr`)."""
         if not self.on:
             return self.node.create_subscription(msg_type, topic, handler, qos, raw=raw)
         sub = self.node.create_subscription(msg_type, topic, handler, qos,

@@ -40,6 +40,7 @@ from rclpy.qos import qos_profile_parameter_events
 from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 
+from dcsms_ros.cdr import TWIST_STAMPED, header_bytes, read_header, read_stamped
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import params_text
 from dcsms_ros.core.modes import ALL_MODES, Mode, controller_ids, enabled_controllers, parse_mode
@@ -58,7 +59,6 @@ from dcsms_ros.nodes.params import (
 from dcsms_ros.nodes.runtime import main_for
 from dcsms_ros.nodes.stability import StabilityGuard
 from dcsms_ros.nodes.switching import ControllerClients
-from dcsms_ros.nodes.wire import header_bytes, read_header, read_stamped
 from dcsms_ros.protocols.tripfeed import TripFeed
 
 #: Reader depth of the trip monitor's velocity streams (samples).
@@ -246,7 +246,7 @@ class ModeSwitchNode(Node):
             HotPath.drain(sub, partial(self._feed_trip, i))
 
     def _feed_trip(self, i: int, buf: bytes) -> None:
-        self.feed.add(i, *read_stamped(buf, TwistStamped, self.feed.checker.dof))
+        self.feed.add(i, *read_stamped(buf, TWIST_STAMPED, self.feed.checker.dof))
 
     def _judge_locked(self, through_ns: int | None = None) -> None:
         with self._lock:

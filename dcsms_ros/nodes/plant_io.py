@@ -27,12 +27,12 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
+from dcsms_ros.cdr import TWIST_STAMPED, JointStateWriter, StampedWriter, header_bytes
 from dcsms_ros.core import topics
 from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.msgs import node_status, sample_ns, to_stamp
 from dcsms_ros.nodes.params import declare_observed, outside_graph, publishers_matched
-from dcsms_ros.nodes.wire import JointStateWriter, StampedWriter, header_bytes
 from dcsms_ros.protocols.barrier import LockstepBarrier
 
 #: Seconds the handshake waits after the graph looks connected, so DDS endpoints match too.
@@ -68,10 +68,10 @@ class PlantIO:
         self.pub_diag = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         self.pub_check = (node.create_publisher(Header, names.trip_check, qos.stream_pub(True))
                           if trip_gate else None)
-        # the per-sample messages are serialized here directly (wire.py: no message objects)
+        # the per-sample messages are serialized here directly (dcsms_ros.cdr: no message objects)
         self._w_raw = JointStateWriter([c.name for c in sim.channels], "velocity")
         self._w_applied = JointStateWriter(sim.actuator_names, "effort")
-        self._w_truth = [StampedWriter(TwistStamped, b, sim.cfg.plant.dof) for b in self.bodies]
+        self._w_truth = [StampedWriter(TWIST_STAMPED, b, sim.cfg.plant.dof) for b in self.bodies]
         self.clock_every = max(1, int(round(sim.cfg.plant.rate_hz / opts.clock_rate_hz)))
         self.ns = 0
         self._raw_msg = b""

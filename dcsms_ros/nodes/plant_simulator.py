@@ -35,6 +35,7 @@ from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from std_msgs.msg import Header
 
+from dcsms_ros.cdr import WRENCH_STAMPED, read_frame, read_header, read_stamped
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.simulator import PlantSimulator
@@ -45,7 +46,6 @@ from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.params import SELECTORS, NodeConfig, declare_schedule
 from dcsms_ros.nodes.plant_options import declare_plant_options, replayed_ground
 from dcsms_ros.nodes.runtime import Stoppable, main_for
-from dcsms_ros.nodes.wire import read_frame, read_header, read_stamped
 from dcsms_ros.protocols.barrier import Action, LockstepBarrier
 from dcsms_ros.protocols.pacer import HeldInputs, Pacer
 
@@ -223,10 +223,10 @@ class PlantSimulatorNode(Node, Stoppable):
     def _on_force(self, cid: str, buf: bytes, rx_ns: int | None = None) -> None:
         """A force command (serialized); ``rx_ns``: its arrival (monotonic ns) when taken
         later (drained)."""
-        stamp, w = read_stamped(buf, WrenchStamped, self.dof)
+        stamp, w = read_stamped(buf, WRENCH_STAMPED, self.dof)
         w = self.force_guard.clean(w, 0.0)
         if cid == topics.EXCITATION_ID and self.io.exc_stage is None:
-            self.io.excitation_frame(read_frame(buf, WrenchStamped))
+            self.io.excitation_frame(read_frame(buf, WRENCH_STAMPED))
         now_ns = self.io.latency(cid, stamp, rx_ns)
         if not self.lockstep:
             self.held.put(cid, w, now_ns * 1e-9)

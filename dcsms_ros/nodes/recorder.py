@@ -8,8 +8,8 @@ started are recorded), history keep-last ``queue_depth`` (:data:`DEFAULT_DEPTH`)
 
 Messages are never deserialised: the callback receives the CDR bytes (``raw=True``) and hands
 them to :class:`~dcsms_ros.analysis.bagio.BagWriter` with the DDS receive time as the bag time
-(what ``ros2 bag record`` logs). It only unpacks the 8 header-stamp bytes of stamped types for
-the time-gap check (:mod:`dcsms_ros.analysis.gaps`).
+(what ``ros2 bag record`` logs). It only reads the header stamp of stamped types
+(:func:`dcsms_ros.cdr.read_stamp`) for the time-gap check (:mod:`dcsms_ros.analysis.gaps`).
 
 ``/clock`` is not recorded by default (default ``topics`` is ``/dcsms/*``): at 2 kHz it only
 duplicates the header stamps every ``/dcsms`` topic carries and would cost ~7 % of the
@@ -35,7 +35,6 @@ import importlib
 import sys
 import time
 from collections.abc import Sequence
-from struct import unpack_from
 from typing import Any
 
 from rclpy.executors import SingleThreadedExecutor
@@ -44,6 +43,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from dcsms_ros.analysis.bagio import BagWriter
 from dcsms_ros.analysis.gaps import Recording, TopicStats
+from dcsms_ros.cdr import CLOCK, read_stamp
 from dcsms_ros.errors import BagError, DcsmsError
 from dcsms_ros.nodes.bootstrap import STOP_EXCEPTIONS, ros_context, spin_until
 
@@ -70,7 +70,7 @@ def _msg_class(msgtype: str) -> Any:
 
 def _stamped(cls: Any, msgtype: str) -> bool:
     """True if the first 8 bytes of the body are a stamp (header types and Clock)."""
-    if msgtype == "rosgraph_msgs/msg/Clock":
+    if msgtype == CLOCK:
         return True
     fields = list(cls.get_fields_and_field_types().items())
     return bool(fields) and fields[0] == ("header", "std_msgs/Header")
@@ -202,11 +202,8 @@ class Recorder(Node):
         def one(data: bytes, info: dict[str, Any]) -> None:
             recv = info.get("received_timestamp") or time.time_ns()
             write(topic, recv, data)
-            stamp = None
-            if stamped and len(data) >= 12 and data[1] == 1:  # little-endian CDR
-                sec, nsec = unpack_from("<iI", data, 4)
-                stamp = sec * 1_000_000_000 + nsec
-            add(info.get("publication_sequence_number"), stamp, recv)
+            add(info.get("publication_sequence_number"), read_stamp(data) if stamped else None,
+                recv)
 
         def cb(data: bytes, info: dict[str, Any]) -> None:
             one(data, info)

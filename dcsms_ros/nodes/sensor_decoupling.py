@@ -3,7 +3,7 @@
 Subscribes to ``/dcsms/sensors/raw`` (``sensor_msgs/JointState``, ``velocity`` m/s), runs
 :class:`~dcsms_ros.core.decoupling.Decoupler` once per sample and publishes
 ``/dcsms/velocity/<body>`` (``geometry_msgs/TwistStamped``, frame_id = body) with the sample's
-stamp; both sides as serialized CDR (:mod:`.wire`). A repeated stamp (lockstep
+stamp; both sides as serialized CDR (:mod:`dcsms_ros.cdr`). A repeated stamp (lockstep
 retransmission) is answered from the cache without stepping the filters again; an older stamp
 is ignored (:class:`~dcsms_ros.protocols.responder.StampResponder`). Channels are matched by
 name, so a publisher may send them in any order; a missing channel reads NaN, which the core
@@ -23,6 +23,7 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
 
+from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, StampedWriter
 from dcsms_ros.core import topics
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.nodes import qos
@@ -37,7 +38,6 @@ from dcsms_ros.nodes.params import (
     declare_schedule,
 )
 from dcsms_ros.nodes.runtime import main_for
-from dcsms_ros.nodes.wire import StampedWriter, names_blob, names_of, read_joint_state
 from dcsms_ros.protocols.responder import StampResponder, Verdict
 
 #: Longest hold of the first lockstep answer while readers match, s.
@@ -61,9 +61,10 @@ class SensorDecouplingNode(Node):
         self.dof = cfg.plant.dof
         self.bodies = topics.body_names(cfg.plant.num_stages)
         self.names = list(self.dec.channel_names)
-        self._blob = names_blob(self.names)
+        self.reader = JointStateReader("velocity")
+        self._own: tuple[str, ...] | None = None  # the reader's tuple of our own names
         self._index: dict[tuple[str, ...], np.ndarray] = {}
-        self.writers = [StampedWriter(TwistStamped, b, self.dof) for b in self.bodies]
+        self.writers = [StampedWriter(TWIST_STAMPED, b, self.dof) for b in self.bodies]
         # lockstep: transient local, so mode_switch's trip checker gets every sample from 0
         self.pubs = [self.create_publisher(TwistStamped, topics.LOCAL.velocity(b),
                                            qos.stream_pub(lockstep, durable=True))
@@ -78,13 +79,13 @@ class SensorDecouplingNode(Node):
         self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.hot.start()
 
-    def _channels(self, names: bytes | list[str], v: np.ndarray) -> np.ndarray:
-        """Channel velocities in the decoupler's order (NaN where missing); ``names`` raw (see
-        :func:`.wire.read_joint_state`) or decoded."""
-        if names == self._blob and v.shape[0] == len(self.names):
+    def _channels(self, key: tuple[str, ...], v: np.ndarray) -> np.ndarray:
+        """Channel velocities in the decoupler's order (NaN where missing); ``key``: the
+        message's names as the reader returns them (one tuple object per layout)."""
+        if key is self._own and v.shape[0] == len(self.names):
             return v  # the plant's own names and order: the common, cheap case
-        key = tuple(names_of(names) if isinstance(names, bytes) else names)
         if list(key) == self.names and v.shape[0] == len(self.names):
+            self._own = key
             return v
         idx = self._index.get(key)
         if idx is None:
@@ -101,7 +102,7 @@ class SensorDecouplingNode(Node):
         return np.where(idx >= 0, v[np.maximum(idx, 0)], np.nan)
 
     def _on_raw(self, buf: bytes) -> None:
-        ns, names, v = read_joint_state(buf)
+        ns, names, v = self.reader.read(buf)
         # implausible channels are counted on arrival and read NaN (that body's twist is zero)
         raw = self.guard.clean_each(self._channels(names, v), np.nan)
         verdict = self.answers.judge(ns)

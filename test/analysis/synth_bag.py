@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros import cdr
 from dcsms_ros.analysis.bagio import LATCHED_QOS, open_bag
 from dcsms_ros.analysis.reader import CONFIG_TOPIC, config_to_yaml
 from dcsms_ros.core.config import load_config

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros import cdr
 from dcsms_ros.analysis.bagio import LATCHED_QOS, open_bag
 from dcsms_ros.errors import BagError
 

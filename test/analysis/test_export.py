@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros import cdr
 from dcsms_ros.analysis.export import sample_times_ns, to_six, write_result_bag
 from dcsms_ros.analysis.reader import CONFIG_TOPIC, config_from_yaml
 from dcsms_ros.analysis.replay import load_ground, parse_ground_spec, resample

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros import cdr
 from dcsms_ros.cli import main
 from dcsms_ros.cli.sim import parse_schedule
 from dcsms_ros.core.modes import Mode

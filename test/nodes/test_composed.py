@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros import cdr
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig, with_overrides
 from dcsms_ros.core.engine import simulate

@@ -6,6 +6,7 @@ import numpy as np
 import rclpy
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from node_helpers import executor_for, overrides, spin_until
+from rosmsgs import joint_state, stamp_ns, twist_array, twist_msg, wrench_array
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
@@ -14,7 +15,6 @@ from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
-from dcsms_ros.nodes.msgs import joint_state, stamp_ns, twist_array, twist_msg, wrench_array
 from dcsms_ros.nodes.sensor_decoupling import SensorDecouplingNode
 
 

@@ -11,13 +11,13 @@ import rclpy
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from node_helpers import executor_for
 from rclpy.serialization import deserialize_message
+from rosmsgs import stamp_ns, twist_array, wrench_array
 from sensor_msgs.msg import JointState
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.engine import simulate
 from dcsms_ros.core.modes import Mode, controller_ids
 from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.msgs import stamp_ns, twist_array, wrench_array
 
 DURATION_S = 2.0
 #: Wall-clock bound of the whole run (startup ~10 s, a loaded 2-core box ~100-400 samples/s).

@@ -7,6 +7,7 @@ import time
 import numpy as np
 import rclpy
 from node_helpers import executor_for, overrides, spin_until
+from rosmsgs import stamp_ns
 from sensor_msgs.msg import JointState
 
 from dcsms_ros.core import topics
@@ -14,7 +15,6 @@ from dcsms_ros.core.engine import simulate
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
-from dcsms_ros.nodes.msgs import stamp_ns
 from dcsms_ros.nodes.plant_simulator import PlantSimulatorNode
 from dcsms_ros.nodes.sensor_decoupling import SensorDecouplingNode
 

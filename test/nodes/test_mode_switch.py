@@ -10,6 +10,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from node_helpers import overrides
 from rclpy.executors import MultiThreadedExecutor
+from rosmsgs import twist_msg
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
@@ -17,7 +18,7 @@ from dcsms_ros.core import topics
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
 from dcsms_ros.nodes.mode_switch import ModeSwitchNode
-from dcsms_ros.nodes.msgs import status, twist_msg
+from dcsms_ros.nodes.msgs import status
 
 
 class Graph:

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros import cdr
 from dcsms_ros.analysis.gaps import TopicStats
 from dcsms_ros.cli import main
 from dcsms_ros.cli.record import recorder_command

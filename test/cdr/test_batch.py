@@ -1,11 +1,11 @@
-"""Fast numpy CDR codecs against rosbags and rclpy serialisation."""
+"""Batch CDR codecs (K messages as byte matrices) against rosbags and rclpy serialisation."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from dcsms_ros.analysis import cdr
+from dcsms_ros import cdr
 
 rclpy_ser = pytest.importorskip("rclpy.serialization")
 K = 7
@@ -17,8 +17,8 @@ def _stamps(rng: np.random.Generator) -> np.ndarray:
 
 
 def _padding_mask(msgtype: str, frame_id: str = "", names=(), counts=(0, 0, 0)) -> np.ndarray:
-    lay = cdr._layout(msgtype, frame_id, names, counts)
-    mask = np.array(lay.const, dtype=bool)
+    lay = cdr.message_layout(msgtype, frame_id, names, counts)
+    mask = lay.const.copy()
     for off, dtype, count in lay.fields.values():
         mask[off:off + np.dtype(dtype).itemsize * count] = True
     return mask
