@@ -14,7 +14,7 @@ from dcsms_ros.analysis import frf, modetable, output, timefreq
 from dcsms_ros.analysis import paper as paper_table
 from dcsms_ros.analysis.criteria import evaluate
 from dcsms_ros.analysis.modelfrf import LoopFrf
-from dcsms_ros.analysis.reader import AXIS_NAMES, BagData, Progress, config_from_yaml, read_bag
+from dcsms_ros.analysis.reader import BagData, Progress, config_from_yaml, read_bag
 from dcsms_ros.analysis.segments import (
     MIN_SEGMENT_S,
     SETTLE_S,
@@ -23,6 +23,7 @@ from dcsms_ros.analysis.segments import (
     split_excited,
     split_segments,
 )
+from dcsms_ros.analysis.series import AXIS_NAMES
 from dcsms_ros.analysis.stability import envelope
 from dcsms_ros.analysis.summary import Summary, dumps
 from dcsms_ros.core.check import Stability, stability

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dcsms_ros.analysis.reader import BagData, ModeEvent, TopicSeries
+from dcsms_ros.analysis.reader import BagData, ModeEvent
+from dcsms_ros.analysis.series import TopicSeries
 from dcsms_ros.core.modes import Mode, parse_mode
 from dcsms_ros.errors import ModeError
 

@@ -42,7 +42,8 @@ import numpy as np
 from scipy.io import savemat
 
 from dcsms_ros.analysis import estimators as est
-from dcsms_ros.analysis.reader import column_unit, read_topics
+from dcsms_ros.analysis.reader import read_topics
+from dcsms_ros.analysis.series import column_unit
 from dcsms_ros.errors import DcsmsError
 
 FORMATS = ("npz", "csv", "mat")
