@@ -56,7 +56,18 @@ class Fader:
 
     @property
     def target(self) -> bool:
+        """True while ramping towards (or at) 1."""
         return self._on
+
+    @property
+    def steps(self) -> int:
+        """Samples of a full 0 -> 1 ramp (0: instant switching)."""
+        return self._n
+
+    @property
+    def count(self) -> int:
+        """Samples into the ramp, 0 .. :attr:`steps`; the gain is ``count / steps``."""
+        return self._k
 
     def set_target(self, on: bool) -> None:
         """Ramp towards 1 (True) or 0 (False) from the current value."""
@@ -161,6 +172,12 @@ class _Loop:
     def filter(self) -> SosFilter:
         """The compensator sections, one channel per entry of :attr:`axes`."""
         return self._filter
+
+    @property
+    def saved_state(self) -> Array:
+        """The filter state from before the current sample, which a saturated sample restores
+        (conditional integration); shape as :meth:`SosFilter.get_state`, shared buffer."""
+        return self._saved
 
     def enable(self, on: bool) -> None:
         """Fade the output in (True) or out (False) over ``control.fade_time_s``."""

@@ -1,10 +1,14 @@
 """Fast path of the batch engine: the core step objects' arrays driven by :mod:`.fastloop`.
 
 The objects are built exactly as for the object path (:class:`.engine.Simulation`); this module
-only reads their coefficient matrices and filter states (the states are shared and advanced in
-place) and feeds the compiled loop the disturbances, replayed ground and geophone noise that the
-objects themselves draw, block by block (:meth:`.Disturbances.block`,
-:meth:`.GeophoneArray.noise_block`). Between blocks only the fader targets change.
+reads their coefficients and states only through their documented array API
+(:attr:`.SosFilter.arrays`, :attr:`.DiscretePlant.a`/``b``/``c``/``x``,
+:attr:`.PlantSimulator.channel_matrix`/``sample_inputs``, :attr:`.Decoupler.extension`/``blocks``,
+the loops' ``filter``/``axes``/``saved_state``/``allocator``/``fader``). The states are the
+objects' own arrays, advanced in place. It feeds the compiled loop the disturbances, replayed
+ground and geophone noise that the objects themselves draw, block by block
+(:meth:`.Disturbances.block`, :meth:`.GeophoneArray.noise_block`). Between blocks only the fader
+targets change.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcsms_ros.core.decoupling import Decoupler
+from dcsms_ros.core.filters import SosFilter
 from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.core.simulator import PlantSimulator
 
@@ -43,9 +48,9 @@ def _mat(a: Any) -> Any:
     return a if a.flags.c_contiguous or a.flags.f_contiguous else np.ascontiguousarray(a)
 
 
-def _sos_arrays(f: Any) -> tuple[Array, ...]:
-    """(b0, b1, b2, a1, a2, z) of a :class:`.SosFilter`; ``z`` is its own state array."""
-    return (f._b0, f._b1, f._b2, f._a1, f._a2, f._z)
+def _sos_arrays(f: SosFilter) -> tuple[Array, ...]:
+    """(b0, b1, b2, a1, a2, state) of a filter, as the kernel takes them (shared arrays)."""
+    return tuple(f.arrays)
 
 
 class Inputs:
@@ -81,32 +86,34 @@ class FastLoop:
                  body: Mapping[str, int]) -> None:
         self.sim, self.ids = sim, list(ctrls)
         p = sim.plant
-        n_out, nx = p._c.shape
-        self.plant = (p._a, p._b, p._c, _mat(sim._chan), p.x, np.zeros(n_out), np.zeros(nx),
-                      np.zeros(nx), np.zeros_like(sim._u), np.zeros(sim._chan.shape[1]),
-                      np.zeros(sim._chan.shape[0]))
-        self.geo = _sos_arrays(sim.geophones._filter)
-        self.ext = _sos_arrays(dec._ext)
-        starts = [sl.start for sl, _ in dec._blocks] + [dec._blocks[-1][0].stop]
-        self.dec = (np.asarray(starts, np.int64), tuple(_mat(m) for _, m in dec._blocks),
-                    tuple(np.zeros(sl.stop - sl.start) for sl, _ in dec._blocks),
-                    np.zeros(sim._chan.shape[0]))
+        n_out, nx = p.c.shape
+        chan = sim.channel_matrix
+        self.plant = (p.a, p.b, p.c, _mat(chan), p.x, np.zeros(n_out), np.zeros(nx),
+                      np.zeros(nx), np.zeros(p.n_inputs), np.zeros(chan.shape[1]),
+                      np.zeros(chan.shape[0]))
+        self.geo = _sos_arrays(sim.geophones.filter)
+        self.ext = _sos_arrays(dec.extension)
+        blocks = dec.blocks
+        starts = [sl.start for sl, _ in blocks] + [blocks[-1][0].stop]
+        self.dec = (np.asarray(starts, np.int64), tuple(_mat(m) for _, m in blocks),
+                    tuple(np.zeros(sl.stop - sl.start) for sl, _ in blocks),
+                    np.zeros(chan.shape[0]))
         loops = list(ctrls.values())
-        filt = [_sos_arrays(c._filter) for c in loops]
+        filt = [_sos_arrays(c.filter) for c in loops]
         self.ctl = (*(tuple(f[j] for f in filt) for j in range(6)),
-                    tuple(c._saved for c in loops),
-                    tuple(_c(c._axes, np.int64) for c in loops),
+                    tuple(c.saved_state for c in loops),
+                    tuple(_c(c.axes, np.int64) for c in loops),
                     tuple(_mat(c.allocator.pinv) for c in loops),
                     tuple(_mat(c.allocator.b) for c in loops),
-                    tuple(np.zeros(len(c._axes)) for c in loops),
+                    tuple(np.zeros(len(c.axes)) for c in loops),
                     tuple(np.zeros(c.allocator.n_act) for c in loops),
                     np.array([c.allocator.limit for c in loops]),
                     np.array([body[cid] for cid in ctrls], np.int64),
                     np.array([ControllerId.parse(cid).stage - 1 for cid in ctrls], np.int64),
                     np.zeros((len(loops), sim.dof)))
-        self.fade = (np.array([c.fader._n for c in loops], np.int64),
-                     np.array([c.fader._k for c in loops], np.int64),
-                     np.array([c.fader._on for c in loops], np.int64))
+        self.fade = (np.array([c.fader.steps for c in loops], np.int64),
+                     np.array([c.fader.count for c in loops], np.int64),
+                     np.array([c.fader.target for c in loops], np.int64))
         self.counters = np.zeros(2, np.int64)
         self.alloc = (tuple(_mat(a.pinv) for a in sim.allocators),
                       np.array([a.limit for a in sim.allocators]),
@@ -129,8 +136,9 @@ class FastLoop:
         if self._first:  # sample 0 was drawn when the simulator was built
             self._first = False
             g, w = sim.disturbances.block(m - 1)
-            g = np.vstack([sim._ground[None, :], g])
-            w = np.concatenate([sim._dist[None], w])
+            g0, w0 = sim.sample_inputs
+            g = np.vstack([g0[None, :], g])
+            w = np.concatenate([w0[None], w])
         else:
             g, w = sim.disturbances.block(m)
         noise = sim.geophones.noise_block(m)

@@ -8,7 +8,7 @@ runs them sample by sample, vectorised over channels, without hidden state.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import control as ct
 import numpy as np
@@ -184,6 +184,28 @@ def feedback_sos(fb: FeedbackConfig, axis: int, fs: float) -> Array:
     return to_sos(feedback_tf(fb, axis), fs, fb.notch_hz if 0.0 < fb.notch_hz < fs / 2 else 0.0)
 
 
+class SosArrays(NamedTuple):
+    """The arrays a :class:`SosFilter` runs on: the filter's own arrays, not copies.
+
+    A kernel that advances ``state`` in place with the recursion of :meth:`SosFilter.step`
+    (transposed direct form II, section by section, channel by channel) advances the filter.
+
+    Attributes
+    ----------
+    b0, b1, b2, a1, a2 : ndarray, shape (n_sections, channels)
+        Coefficients normalised by ``a0`` (C-contiguous; do not write).
+    state : ndarray, shape (n_sections, 2, channels)
+        The delay states (units of the filter's output).
+    """
+
+    b0: Array
+    b1: Array
+    b2: Array
+    a1: Array
+    a2: Array
+    state: Array
+
+
 class SosFilter:
     """Cascade of second-order sections, transposed direct form II, vectorised over channels.
 
@@ -210,6 +232,12 @@ class SosFilter:
         self.sections = int(s.shape[1])
         self._z = np.zeros((self.sections, 2, self.channels))
         self._y = np.zeros(self.channels)
+
+    @property
+    def arrays(self) -> SosArrays:
+        """The coefficient and state arrays this filter steps with (shared, see
+        :class:`SosArrays`)."""
+        return SosArrays(self._b0, self._b1, self._b2, self._a1, self._a2, self._z)
 
     def coefficients(self) -> Array:
         """The normalised coefficients the filter runs, shape (channels, n_sections, 6), rows

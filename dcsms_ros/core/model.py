@@ -226,6 +226,21 @@ class DiscretePlant:
         self.n_inputs = int(ss.b.shape[1])
         self.n_outputs = int(ss.c.shape[0])
 
+    @property
+    def a(self) -> Array:
+        """``Ad`` (nx, nx), the array :meth:`step` multiplies with (shared; do not write)."""
+        return self._a
+
+    @property
+    def b(self) -> Array:
+        """``Bd`` (nx, n_inputs), the array :meth:`step` multiplies with (shared)."""
+        return self._b
+
+    @property
+    def c(self) -> Array:
+        """``C`` (n_outputs, nx), the array :meth:`output` multiplies with (shared)."""
+        return self._c
+
     def step(self, u: Array) -> None:
         """Advance one sample with input ``u`` (n_inputs,) held over the period."""
         np.dot(self._a, self.x, out=self._ax)

@@ -122,6 +122,12 @@ class PlantSimulator:
         """(n_ch, (N+1)*dof) map from true twists [ground, stages] to channel velocities."""
         return self._chan
 
+    @property
+    def sample_inputs(self) -> tuple[Array, Array]:
+        """Ground twist (dof,) m/s, rad/s and table wrenches (N, dof) N, N*m of sample k, as
+        drawn (the arrays :meth:`advance` holds over the period; do not write)."""
+        return self._ground, self._dist
+
     def _draw(self) -> None:
         if self.disturbances is None:
             self._ground = np.zeros(self.cfg.plant.dof)
