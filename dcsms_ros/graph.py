@@ -16,7 +16,7 @@ and, for ``--composed``, its class in :data:`NODE_CLASSES`.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -143,6 +143,15 @@ class GraphSpec:
                 + [nm.truth(b) for b in bodies]
                 + [nm.force(c) for c in controller_ids(self.num_stages)]
                 + ([nm.force(topics.EXCITATION_ID)] if excited else []))
+
+    def lockstep_observed(self, recorded: Collection[str] | None = None) -> list[str]:
+        """What the plant of a recorded lockstep run waits for the recorder to subscribe to
+        before sample 0 (absolute; ``recorded``: the recorded topics, None: all): every
+        per-sample topic, and the latched mode and configuration, which keep only their newest
+        message: a recorder that found them after a switch would miss the modes before it."""
+        nm = self.names
+        wanted = [*self.stream_topics(), nm.mode, nm.config]
+        return [t for t in wanted if recorded is None or t in recorded]
 
     def analysis_topics(self) -> list[str]:
         """What ``dcsms analyze`` reads (absolute): recording only these keeps the graph fast

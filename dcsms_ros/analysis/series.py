@@ -139,6 +139,15 @@ class TopicSink:
         vals = self.values if self.values is not None else np.zeros((0, 0), np.float32)
         stamp, vals = self.stamp[:self.k], vals[:self.k]
         log = None if self.log_ns is None else self.log_ns[:self.k]
+        if stamp.size > 1:
+            # a lockstep retransmission repeats the sample just sent (same stamp, same
+            # numbers): one sample, not two, for the estimators' uniform time axis
+            keep = np.empty(stamp.size, dtype=bool)
+            keep[0] = True
+            np.not_equal(stamp[1:], stamp[:-1], out=keep[1:])
+            if not keep.all():
+                stamp, vals = stamp[keep], vals[keep]
+                log = None if log is None else log[keep]
         if stamp.size > 1 and np.any(np.diff(stamp) < 0):
             # Segmentation and alignment search the stamps: order them (a publisher that
             # reorders, or two recordings merged); the bag times keep their own order.

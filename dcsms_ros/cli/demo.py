@@ -137,7 +137,7 @@ def _graph(args: argparse.Namespace, cfg: Any, modes: list[Mode], span: float, t
     spec = build_graph(cfg, args, "lockstep", modes[0], total, schedule)
     recorded = spec.analysis_topics()
     spec = build_graph(cfg, args, "lockstep", modes[0], total, schedule,
-                       observers=[t for t in spec.stream_topics() if t in recorded])
+                       observers=spec.lockstep_observed(recorded))
     status = launch(spec, args, schedule, bag, recorded, out / "logs", True, cfg.plant.rate_hz)
     if status != 0:
         raise DcsmsError(f"the graph exited with status {status} (logs in {out / 'logs'})")

@@ -178,7 +178,7 @@ def _graph(args: argparse.Namespace, cfg: Any, mode: Any, schedule: list[Any]) -
     nm = spec.names
     recorded = [nm.config, nm.mode, *spec.stream_topics()]
     spec = build_graph(cfg, args, "lockstep", mode, args.duration, schedule,
-                       observers=spec.stream_topics())
+                       observers=spec.lockstep_observed(recorded))
     t0 = time.perf_counter()
     status = launch(spec, args, schedule, args.out, recorded, None, True, cfg.plant.rate_hz)
     if status == 0:

@@ -182,8 +182,7 @@ def run(args: argparse.Namespace) -> int:
     spec = build_graph(cfg, args, args.schedule, mode, args.duration or 0.0, events)
     if args.record is not None and args.schedule == "lockstep":
         # lockstep must not outrun the recorder's start
-        observers += [t for t in spec.stream_topics() if not args.record_topics
-                      or t in args.record_topics]
+        observers += spec.lockstep_observed(args.record_topics or None)
     if observers:
         spec = build_graph(cfg, args, args.schedule, mode, args.duration or 0.0, events,
                            observers)

@@ -13,9 +13,10 @@ Trip (:class:`~dcsms_ros.core.trip.TripChecker` fed by
 :class:`~dcsms_ros.protocols.tripfeed.TripFeed`): the stage velocities are judged at every
 checkpoint; a trip disables every controller, latches Passive, logs why and reports it on
 ``/diagnostics``; only ``reset_trip`` clears the latch (the mode stays Passive). Lockstep: the
-plant asks about each checkpoint (``trip/check``) and waits for the verdict (``trip/checked``,
-sent after the controllers confirmed a trip's disable), so the trip lands on the batch
-engine's sample. Real time: the velocities are judged every 50 ms of wall time.
+plant asks about each checkpoint (``trip/check``) once every controller answered its last
+sample, and waits for the verdict (``trip/checked``, sent after the controllers confirmed a
+trip's disable), so the trip lands on the batch engine's sample. Real time: the velocities
+are judged every 50 ms of wall time.
 
 ``config`` (std_msgs/String, transient local) carries the whole configuration as a ROS 2
 params file, including tuning changed on the controller nodes (learnt from

@@ -7,7 +7,7 @@ graph's namespace). Two schedules (parameter ``schedule``):
 * ``lockstep`` - sample k is published, and the plant advances to k+1 only when the
   :class:`~dcsms_ros.protocols.barrier.LockstepBarrier` holds every expected controller's force
   stamped k (and, with ``trip_gate``, mode_switch's verdict on a trip checkpoint ending at k:
-  ``trip/check`` asks, ``trip/checked`` answers). The same
+  ``trip/check`` asks once the forces of k are in, ``trip/checked`` answers). The same
   :class:`~dcsms_ros.core.simulator.PlantSimulator` calls happen in the same order as in
   :func:`dcsms_ros.core.engine.simulate`, so the trajectory is the batch engine's bit for bit.
   Timeouts, *absent* participants and retransmission are the barrier's. ``hold_at_s`` stops the
@@ -77,7 +77,7 @@ class PlantSimulatorNode(Node, Stoppable):
         self.barrier = LockstepBarrier(
             self.controllers + ([TRIP] if gate else []), cfg.control.lockstep_timeout_s,
             opts.retry_s, opts.absent_after, opts.handshake_timeout_s,
-            every={TRIP: check_samples(self.rate)})
+            every={TRIP: check_samples(self.rate)}, last=[TRIP])
         self._set_hold(opts.hold_at_s)
         self._zero = np.zeros(self.dof)
         self.pacer = Pacer(self.rate)
@@ -184,12 +184,15 @@ class PlantSimulatorNode(Node, Stoppable):
             return None if not self.barrier.waiting else self.barrier.next_deadline(now)
         act = self.barrier.poll(now)
         if act is Action.RETRANSMIT:
-            self.io.republish(TRIP in self.barrier.missing())
+            self.io.republish(TRIP in self.barrier.missing() and TRIP in self.barrier.asked)
         elif act is Action.TIMEOUT:
             missing, absent = self.barrier.expire()
             self.io.missed(missing, absent, self.barrier)
-            self._complete()
-            self._pump()
+            if self.barrier.waiting:
+                self._ask()
+            else:
+                self._complete()
+                self._pump()
         return self.barrier.next_deadline(now) if self.barrier.waiting else None
 
     def _pump(self, max_steps: int = 50) -> None:
@@ -204,10 +207,15 @@ class PlantSimulatorNode(Node, Stoppable):
                 return
             ns = self.io.publish_sample(self.sim.k)
             if self.barrier.begin(self.sim.k, ns, time.monotonic()):
-                if TRIP in self.barrier.missing():
-                    self.io.ask_trip(ns)
+                self._ask()
                 return
             self._complete()
+
+    def _ask(self) -> None:
+        """Ask for the trip verdict once the controllers answered the checkpoint sample: a
+        trip disables them, which must not reach one before it answered that sample."""
+        if TRIP in self.barrier.to_ask():
+            self.io.ask_trip(self.barrier.stamp_ns)
 
     def _complete(self) -> None:
         b = self.barrier
@@ -236,6 +244,8 @@ class PlantSimulatorNode(Node, Stoppable):
         if self.barrier.offer(cid, stamp, w):
             self._complete()
             self._pump()
+        else:
+            self._ask()
 
     def _on_checked(self, buf: bytes) -> None:
         """mode_switch judged the trip checkpoint ending at ``stamp``."""

@@ -10,14 +10,18 @@ answer counts as none) and completes the sample. After ``absent_after`` misses i
 participant is *absent*: not waited for until it answers again.
 
 A participant may be due only at some samples (``every``: after sample k with
-``(k + 1) % every == 0``), as the instability trip's checkpoints are. :attr:`hold` stops the
-plant before a chosen sample (a mode switch scheduled there happens while nothing moves).
+``(k + 1) % every == 0``), as the instability trip's checkpoints are. A participant may be
+asked ``last``: only once every other due participant answered (or missed) the sample
+(:meth:`~LockstepBarrier.to_ask`). The trip verdict is: a trip disables the controllers, and
+that must not overtake a controller's answer to the checkpoint sample itself. :attr:`hold`
+stops the plant before a chosen sample (a mode switch scheduled there happens while nothing
+moves).
 """
 
 from __future__ import annotations
 
 import enum
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 
@@ -48,13 +52,21 @@ class LockstepBarrier:
     every : mapping of str to int, optional
         Participants due only after sample k with ``(k + 1) % every == 0`` (default 1: every
         sample).
+    last : collection of str, optional
+        Participants asked only after every other due participant answered or missed the
+        sample (:meth:`to_ask`); their timeout starts when they are asked.
     """
 
     def __init__(self, participants: Sequence[str], timeout_s: float, retry_s: float,
                  absent_after: int, first_timeout_s: float,
-                 every: Mapping[str, int] | None = None) -> None:
+                 every: Mapping[str, int] | None = None, last: Collection[str] = ()) -> None:
         self.participants = list(participants)
         self.every = {p: max(1, int((every or {}).get(p, 1))) for p in self.participants}
+        self.last = set(last)
+        #: ``last`` participants asked about the current sample
+        self.asked: set[str] = set()
+        self._missed: set[str] = set()  # missed the current sample before ``last`` was asked
+        self._due_last = False
         self.timeout_s = timeout_s
         self.retry_s = retry_s
         self.absent_after = absent_after
@@ -70,7 +82,7 @@ class LockstepBarrier:
         self.waiting = False
         self.due: list[str] = []
         self.got: dict[str, Any] = {}
-        self._t_sent = self._t_retx = 0.0
+        self._t_sent = self._t_retx = self._t_poll = 0.0
 
     def due_at(self, k: int) -> list[str]:
         """Participants whose answer to sample ``k`` is waited for (absent ones included)."""
@@ -85,7 +97,9 @@ class LockstepBarrier:
         must be waited for, False if it is complete at once (nobody due, or all absent)."""
         self.k, self.stamp_ns = k, stamp_ns
         self.got = {}
+        self.asked, self._missed = set(), set()
         self.due = self.due_at(k)
+        self._due_last = any(p in self.last for p in self.due)
         self.waiting = any(p not in self.absent for p in self.due)
         self._t_sent = self._t_retx = now
         return self.waiting
@@ -98,23 +112,38 @@ class LockstepBarrier:
         """
         self.absent.discard(who)
         if (not self.waiting or stamp_ns != self.stamp_ns or who in self.got
-                or who not in self.due):
+                or who not in self.due or who in self._missed):
             return False
         self.got[who] = value
         self.consec[who] = 0
-        if all(p in self.got or p in self.absent for p in self.due):
+        if not self.missing():
             self.waiting = False
             return True
         return False
 
     def missing(self) -> list[str]:
-        """Due participants that have not answered the current sample and are not absent."""
-        return [p for p in self.due if p not in self.got and p not in self.absent]
+        """Due participants that have not answered the current sample and are not absent (nor
+        given up for it)."""
+        return [p for p in self.due
+                if p not in self.got and p not in self.absent and p not in self._missed]
+
+    def to_ask(self) -> list[str]:
+        """The ``last`` participants to ask about the current sample now: each once, when every
+        other due participant has answered, missed it or is absent."""
+        if not self._due_last or not self.waiting:
+            return []
+        missing = self.missing()
+        if any(p not in self.last for p in missing):
+            return []
+        new = [p for p in missing if p not in self.asked]
+        self.asked.update(new)
+        return new
 
     def poll(self, now: float) -> Action:
         """What to do at ``now`` (s) while waiting: nothing, republish, or give up."""
         if not self.waiting:
             return Action.NONE
+        self._t_poll = now
         limit = self.timeout_s if self.k > 0 else self.first_timeout_s
         if now - self._t_sent > limit:
             return Action.TIMEOUT
@@ -131,7 +160,9 @@ class LockstepBarrier:
         return max(due - now, 0.0) + 1e-4  # poll() needs the deadline passed
 
     def expire(self) -> tuple[list[str], list[str]]:
-        """Count a fault for every missing participant and complete the sample.
+        """Count a fault for every missing participant and complete the sample; while a
+        ``last`` participant has not been asked yet, only the others miss it: the sample stays
+        open, with a new timeout, for the ``last`` ones (:meth:`to_ask` now returns them).
 
         Returns
         -------
@@ -141,6 +172,13 @@ class LockstepBarrier:
             Who became absent with this miss.
         """
         missing = self.missing()
+        later = [p for p in missing if p in self.last and p not in self.asked]
+        if later and len(later) < len(missing):
+            missing = [p for p in missing if p not in later]
+            self._missed.update(missing)
+            self._t_sent = self._t_retx = self._t_poll
+        else:
+            self.waiting = False
         newly = []
         for p in missing:
             self.faults[p] += 1
@@ -148,7 +186,6 @@ class LockstepBarrier:
             if self.consec[p] >= self.absent_after:
                 self.absent.add(p)
                 newly.append(p)
-        self.waiting = False
         return missing, newly
 
     def state(self, who: str) -> str:

@@ -47,11 +47,15 @@ def simulate(fs: float, seconds: float, modes=MODES, seed: int = 3):
 
 
 def write_bag(path: Path, fs: float = 500.0, seconds: float = 20.0, modes=MODES,
-              config: bool = True, storage: str = "mcap") -> Path:
-    """Write a multi-mode bag: velocities, applied forces, /dcsms/mode and /dcsms/config."""
+              config: bool = True, storage: str = "mcap", repeat: tuple[int, ...] = ()) -> Path:
+    """Write a multi-mode bag: velocities, applied forces, /dcsms/mode and /dcsms/config;
+    ``repeat``: samples recorded twice in a row in every stream (lockstep retransmissions)."""
     vb, v, f, n = simulate(fs, seconds, modes)
+    dt_ns = int(round(1e9 / fs))
+    rows = np.sort(np.r_[np.arange(vb.size), np.asarray(repeat, dtype=np.int64)])
+    vb, v, f = vb[rows], v[rows], f[rows]
     k = vb.size
-    t = 1_000_000_000 + np.arange(k, dtype=np.int64) * int(round(1e9 / fs))
+    t = 1_000_000_000 + rows * dt_ns
     zeros = np.zeros((k, 6))
     with open_bag(path, storage) as w:
         w.add_topic("/dcsms/mode", "std_msgs/msg/String", LATCHED_QOS)
@@ -59,7 +63,7 @@ def write_bag(path: Path, fs: float = 500.0, seconds: float = 20.0, modes=MODES,
         if config:
             w.write(CONFIG_TOPIC, int(t[0]), cdr.encode_string(config_to_yaml(load_config())))
         for i, (label, _, _) in enumerate(modes):
-            w.write("/dcsms/mode", int(t[i * n]), cdr.encode_string(label))
+            w.write("/dcsms/mode", 1_000_000_000 + i * n * dt_ns, cdr.encode_string(label))
         for body, vel in (("ground", vb), ("stage1", v[:, 0]), ("stage2", v[:, 1])):
             tw = zeros.copy()
             tw[:, 2] = vel

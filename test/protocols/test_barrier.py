@@ -81,3 +81,62 @@ def test_hold_stops_before_the_chosen_sample() -> None:
     assert b.may_publish(599) and not b.may_publish(600)
     b.hold = None
     assert b.may_publish(600)
+
+
+def _last_barrier() -> LockstepBarrier:
+    return LockstepBarrier([*IDS, "trip"], timeout_s=0.5, retry_s=0.2, absent_after=3,
+                           first_timeout_s=10.0, every={"trip": 100}, last=["trip"])
+
+
+def test_last_participant_is_asked_once_after_every_other_answered() -> None:
+    """The trip verdict is asked only when the controllers' answers to the checkpoint sample
+    are in (a trip's disable must not overtake them), once per sample."""
+    b = _last_barrier()
+    b.begin(99, 49_500_000, now=0.0)
+    assert b.to_ask() == []
+    for c in IDS[:-1]:
+        b.offer(c, 49_500_000, c)
+        assert b.to_ask() == []
+    assert not b.offer(IDS[-1], 49_500_000, "w")
+    assert b.to_ask() == ["trip"]
+    assert b.to_ask() == []  # once
+    assert b.asked == {"trip"}
+    assert b.offer("trip", 49_500_000)
+    b.begin(100, 50_000_000, now=1.0)  # no checkpoint: nothing to ask, a new sample forgets
+    assert b.asked == set()
+    for c in IDS:
+        b.offer(c, 50_000_000, c)
+    assert b.to_ask() == []
+
+
+def test_a_controller_timeout_asks_the_last_participant_with_its_own_timeout() -> None:
+    """A controller that misses a checkpoint sample is counted at the timeout; the sample then
+    stays open for the trip verdict, asked now, with a fresh timeout."""
+    b = _last_barrier()
+    b.begin(99, 49_500_000, now=0.0)
+    for c in IDS[:-1]:
+        b.offer(c, 49_500_000, c)
+    assert b.to_ask() == []
+    assert b.poll(0.6) is Action.TIMEOUT
+    missing, absent = b.expire()
+    assert (missing, absent) == ([IDS[-1]], [])
+    assert b.waiting and b.faults[IDS[-1]] == 1 and b.faults["trip"] == 0
+    assert b.to_ask() == ["trip"]
+    assert b.poll(0.7) is Action.NONE  # the timer restarted at 0.6
+    assert b.poll(1.2) is Action.TIMEOUT
+    assert b.expire() == (["trip"], [])
+    assert not b.waiting and b.faults["trip"] == 1
+    assert IDS[-1] not in b.got  # its answer counts as none
+
+
+def test_late_answer_of_a_missed_controller_does_not_reopen_the_sample() -> None:
+    b = _last_barrier()
+    b.begin(99, 49_500_000, now=0.0)
+    for c in IDS[:-1]:
+        b.offer(c, 49_500_000, c)
+    b.poll(0.6)
+    b.expire()
+    b.to_ask()
+    assert not b.offer(IDS[-1], 49_500_000, "late")
+    assert b.missing() == ["trip"] and IDS[-1] not in b.got  # it missed the sample
+    assert b.offer("trip", 49_500_000)
