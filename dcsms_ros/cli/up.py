@@ -42,7 +42,8 @@ def add_deploy_options(p: argparse.ArgumentParser) -> None:
                    "(default: one process per node, as `ros2 run`)")
     p.add_argument("--recorder", choices=RECORDERS, default="process",
                    help="with --composed and a recording: the recorder in its own process "
-                   "(default) or in the composed one")
+                   "(default) or in the composed one (real time only: in lockstep it falls "
+                   "behind and loses samples)")
     p.add_argument("--rt-priority", type=int, default=0, metavar="N",
                    help="run the control path (plant, decoupling, controllers; composed: the "
                    "driver thread) under SCHED_FIFO priority N (1-99; needs root or "
@@ -56,6 +57,12 @@ def check_deploy_options(args: argparse.Namespace) -> str:
     """Validate the deployment options; returns the namespace (absolute)."""
     if not 0 <= args.rt_priority <= 99:
         raise DcsmsError(f"--rt-priority {args.rt_priority}: must be 0 (off) or 1..99")
+    if (args.recorder == "composed" and args.composed
+            and getattr(args, "schedule", "") != "realtime"):  # sim, demo: lockstep
+        # measured: the in-process recorder, starved by the driver thread, kept 89,061 of
+        # 220,000 messages of a 10 s lockstep run (docs/performance.md); refuse, never lose
+        raise DcsmsError("--recorder composed loses samples of a lockstep run (the driver "
+                         "thread starves it); use --recorder process")
     return topics.check_namespace(args.namespace)
 
 
