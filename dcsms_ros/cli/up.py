@@ -53,12 +53,12 @@ def add_deploy_options(p: argparse.ArgumentParser) -> None:
                    "instability trip is the last line of defence)")
 
 
-def check_deploy_options(args: argparse.Namespace) -> str:
-    """Validate the deployment options; returns the namespace (absolute)."""
+def check_deploy_options(args: argparse.Namespace, schedule: str = "lockstep") -> str:
+    """Validate the deployment options of a run on ``schedule`` (``lockstep`` for sim and
+    demo); returns the namespace (absolute)."""
     if not 0 <= args.rt_priority <= 99:
         raise DcsmsError(f"--rt-priority {args.rt_priority}: must be 0 (off) or 1..99")
-    if (args.recorder == "composed" and args.composed
-            and getattr(args, "schedule", "") != "realtime"):  # sim, demo: lockstep
+    if args.recorder == "composed" and args.composed and schedule == "lockstep":
         # measured: the in-process recorder, starved by the driver thread, kept 89,061 of
         # 220,000 messages of a 10 s lockstep run (docs/performance.md); refuse, never lose
         raise DcsmsError("--recorder composed loses samples of a lockstep run (the driver "
@@ -167,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
     mode = parse_mode(args.mode)
     cfg = load_cfg(args)
     events = parse_schedule(args.switches)
-    check_deploy_options(args)
+    check_deploy_options(args, args.schedule)
     if args.duration is not None and not args.duration > 0:
         raise DcsmsError(f"--duration {args.duration}: must be > 0")
     if args.record is not None and args.record.exists():

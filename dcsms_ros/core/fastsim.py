@@ -21,7 +21,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcsms_ros.core.decoupling import Decoupler
-from dcsms_ros.core.filters import SosFilter
 from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.core.simulator import PlantSimulator
 
@@ -46,11 +45,6 @@ def _mat(a: Any) -> Any:
     variant from it, so keeping C or Fortran order keeps the products bit-identical)."""
     a = np.asarray(a, dtype=np.float64)
     return a if a.flags.c_contiguous or a.flags.f_contiguous else np.ascontiguousarray(a)
-
-
-def _sos_arrays(f: SosFilter) -> tuple[Array, ...]:
-    """(b0, b1, b2, a1, a2, state) of a filter, as the kernel takes them (shared arrays)."""
-    return tuple(f.arrays)
 
 
 class Inputs:
@@ -91,15 +85,15 @@ class FastLoop:
         self.plant = (p.a, p.b, p.c, _mat(chan), p.x, np.zeros(n_out), np.zeros(nx),
                       np.zeros(nx), np.zeros(p.n_inputs), np.zeros(chan.shape[1]),
                       np.zeros(chan.shape[0]))
-        self.geo = _sos_arrays(sim.geophones.filter)
-        self.ext = _sos_arrays(dec.extension)
+        self.geo = tuple(sim.geophones.filter.arrays)
+        self.ext = tuple(dec.extension.arrays)
         blocks = dec.blocks
         starts = [sl.start for sl, _ in blocks] + [blocks[-1][0].stop]
         self.dec = (np.asarray(starts, np.int64), tuple(_mat(m) for _, m in blocks),
                     tuple(np.zeros(sl.stop - sl.start) for sl, _ in blocks),
                     np.zeros(chan.shape[0]))
         loops = list(ctrls.values())
-        filt = [_sos_arrays(c.filter) for c in loops]
+        filt = [c.filter.arrays for c in loops]
         self.ctl = (*(tuple(f[j] for f in filt) for j in range(6)),
                     tuple(c.saved_state for c in loops),
                     tuple(_c(c.axes, np.int64) for c in loops),
