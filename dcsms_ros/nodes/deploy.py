@@ -16,6 +16,7 @@ everything it published. Node logs go to files in ``log_dir`` unless ``verbose``
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -30,6 +31,8 @@ import yaml
 
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, RT_PRIORITY_ENV, GraphSpec
+from dcsms_ros.jsonutil import jsonable
+from dcsms_ros.protocols.runstats import RunSummary, summarize
 from dcsms_ros.rosenv import keep_discovery_local
 
 #: Seconds a process gets to exit after SIGINT, then after SIGTERM, before SIGKILL.
@@ -195,6 +198,7 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     else:
         graph = children(spec, params_file, how.rt_priority)
     status = 0
+    plant: dict[str, str] = {}
     try:
         start(kids, how.log_dir, how.verbose)  # recorder first: it must see the first samples
         start(graph, how.log_dir, how.verbose)
@@ -203,6 +207,7 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
         with monitoring(spec, how.events, rate_hz) as monitor:
             status = monitor.supervise(graph + kids, stop_requested, how.connect_timeout,
                                        how.expect_finish)
+            plant = dict(monitor.diag.get("plant_simulator", {}))
     finally:
         # the graph first (composed with the recorder inside: its drain too), so the recorder
         # receives everything it published
@@ -214,8 +219,33 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
         status = status or 1
     if in_process and graph[0].proc is not None and graph[0].proc.returncode not in (0, None):
         status = status or 1
+    if plant:
+        report_summary(spec, plant, how.record, how.log_dir)
     return status
 
 
-__all__ = ["RECORDERS", "Child", "Deployment", "child_env", "children", "composed_child",
-           "node_argv", "recorder_command", "run_graph", "start", "stop", "write_files"]
+def report_summary(spec: GraphSpec, plant: dict[str, str], bag: Path | None,
+                   log_dir: Path) -> RunSummary:
+    """Print the run's summary line and write it as ``summary.json`` in ``log_dir``."""
+    counts = bag_counts(bag) if bag is not None else None
+    summary = summarize(plant, counts, spec.stream_topics())
+    print(f"dcsms up: summary: {summary.line()}", flush=True)
+    (log_dir / "summary.json").write_text(json.dumps(jsonable(summary.to_dict()), indent=1,
+                                                     allow_nan=False) + "\n")
+    return summary
+
+
+def bag_counts(bag: Path) -> dict[str, int]:
+    """Messages per topic in the closed bag's ``metadata.yaml`` (empty if it has none)."""
+    try:
+        meta = yaml.safe_load((bag / "metadata.yaml").read_text())
+    except (OSError, yaml.YAMLError):
+        return {}
+    info = meta.get("rosbag2_bagfile_information", {}) if isinstance(meta, dict) else {}
+    return {t["topic_metadata"]["name"]: int(t["message_count"])
+            for t in info.get("topics_with_message_count", [])}
+
+
+__all__ = ["RECORDERS", "Child", "Deployment", "bag_counts", "child_env", "children",
+           "composed_child", "node_argv", "recorder_command", "report_summary", "run_graph",
+           "start", "stop", "write_files"]

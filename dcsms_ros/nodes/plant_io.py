@@ -34,9 +34,12 @@ from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.msgs import node_status, sample_ns, to_stamp
 from dcsms_ros.nodes.params import declare_observed, outside_graph, publishers_matched
 from dcsms_ros.protocols.barrier import LockstepBarrier
+from dcsms_ros.protocols.runstats import LatencyHistogram
 
 #: Seconds the handshake waits after the graph looks connected, so DDS endpoints match too.
 SETTLE_S = 0.2
+#: Publication times of the newest samples kept for the latency of late forces (a power of 2).
+RING = 256
 STEADY = Clock(clock_type=ClockType.STEADY_TIME)
 
 
@@ -79,6 +82,8 @@ class PlantIO:
         self._wall_to_mono = time.monotonic_ns() - time.time_ns()
         self._t_pub: list[int] = []  # timing_file: monotonic ns of each sample's publication
         self._lat: dict[str, list[int]] = {c: [] for c in node.controllers}
+        self._ring = [0] * RING  # monotonic ns of sample k's publication at k % RING
+        self.latency_hist = LatencyHistogram()
         self._cpu = [0.0, 0.0]
         self._nonfinite_seen = 0
         self.stale_at: dict[str, tuple[int, int]] = dict.fromkeys(node.controllers, (0, 0))
@@ -135,8 +140,10 @@ class PlantIO:
         """Publish sample ``k`` (the core calls keep the engine's order); returns its stamp."""
         ns = sample_ns(k, self.sim.cfg.plant.rate_hz)
         self.ns = ns
+        t_pub = time.monotonic_ns()
+        self._ring[k % RING] = t_pub
         if self.node.opts.timing_file:
-            self._t_pub.append(time.monotonic_ns())
+            self._t_pub.append(t_pub)
         truth = self.sim.truth().copy()
         raw = self.sim.measure()
         self._raw_msg = self._w_raw.encode(ns, raw)
@@ -202,12 +209,14 @@ class PlantIO:
         return int(info["received_timestamp"]) + self._wall_to_mono
 
     def latency(self, cid: str, stamp: int, rx_ns: int | None) -> int:
-        """The arrival time (monotonic ns) of a force; records its latency for benchmarks."""
+        """The arrival time (monotonic ns) of a force; records its control latency (sample
+        publication -> force arrival) in :attr:`latency_hist`, and per force for benchmarks."""
         now_ns = time.monotonic_ns() if rx_ns is None else rx_ns
-        if self.node.opts.timing_file:  # sensor-to-force: sample publication -> force arrival
-            k = round(stamp * self.sim.cfg.plant.rate_hz / 1e9)
-            if 0 <= k < len(self._t_pub):
-                self._lat[cid].append(now_ns - self._t_pub[k])
+        k = round(stamp * self.sim.cfg.plant.rate_hz / 1e9)
+        if 0 <= self.sim.k - k < RING:  # older answers: their publication time is gone
+            self.latency_hist.add((now_ns - self._ring[k % RING]) * 1e-9)
+        if self.node.opts.timing_file and 0 <= k < len(self._t_pub):
+            self._lat[cid].append(now_ns - self._t_pub[k])
         return now_ns
 
     def missed(self, missing: list[str], absent: list[str], barrier: LockstepBarrier) -> None:
@@ -258,6 +267,9 @@ class PlantIO:
                   "rate_hz": f"{self.sim.cfg.plant.rate_hz:g}",
                   "lockstep_timeouts": sum(b.faults.values()), "retransmits": b.retransmits,
                   "stale_events": sum(nd.held.stale_events.values()),
+                  "stale_samples": sum(nd.held.stale_samples.values()),
+                  "latency_p50_ms": f"{self.latency_hist.quantile(0.5) * 1e3:.4f}",
+                  "latency_p99_ms": f"{self.latency_hist.quantile(0.99) * 1e3:.4f}",
                   "overruns": nd.pacer.overruns, "nonfinite_inputs": self.sim.nonfinite_inputs,
                   "rejected_inputs": nd.force_guard.rejected,
                   "saturations": self.sim.saturations, "finished": nd.finished,

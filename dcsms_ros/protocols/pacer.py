@@ -64,6 +64,8 @@ class HeldInputs:
         self._held: dict[str, tuple[Any, float]] = {}
         self.stale = dict.fromkeys(self.names, True)
         self.stale_events = dict.fromkeys(self.names, 0)
+        #: samples taken with this input stale after it first arrived (before: start-up)
+        self.stale_samples = dict.fromkeys(self.names, 0)
 
     def put(self, name: str, value: Any, t: float) -> None:
         """Input ``name`` got ``value`` at ``t`` (s)."""
@@ -80,6 +82,8 @@ class HeldInputs:
         for n in self.names:
             v, t = self._held.get(n, (self.zero, -math.inf))
             stale = now - t > self.timeout_s
+            if stale and t > -math.inf:
+                self.stale_samples[n] += 1
             if stale and not self.stale[n]:
                 self.stale_events[n] += 1
                 newly.append(n)

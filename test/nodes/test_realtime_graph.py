@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import signal
+import json
 import subprocess
 import sys
 import time
@@ -54,6 +55,11 @@ def test_realtime_graph_switches_mode_and_stops_cleanly(ctx, tmp_path):
     assert up.returncode == 0, out
     texts = [out] + [p.read_text() for p in logs.glob("*.log")]
     assert not any("Traceback" in t for t in texts), out
+    # the summary of a run stopped by a signal: the plant's last report, as a line and as JSON
+    summary = json.loads((logs / "summary.json").read_text())
+    assert summary["samples"] >= int(plant["sample"]) > 0, (summary, plant)
+    assert f"dcsms up: summary: samples {summary['samples']}, late {summary['late']} " in out
+    assert summary["recorded"] is None and out.rstrip().endswith("dcsms up: stopped"), out
     print(f"\nreal time: achieved {plant.get('achieved_rate_hz')} Hz of {plant.get('rate_hz')} "
           f"Hz at t={plant.get('sim_time_s')} s; stale events {plant.get('stale_events')}, "
           f"overruns {plant.get('overruns')}")

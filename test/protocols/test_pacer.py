@@ -29,6 +29,8 @@ def test_held_inputs_go_stale_and_count_it_once() -> None:
     h.put("a", 5.0, 1.012)
     assert h.take(1.015) == ({"a": 5.0, "b": 0.0}, ["b"])
     assert h.take(1.016)[1] == [] and h.stale_events == {"a": 0, "b": 1}
+    # stale samples count every take after the first arrival, not the start-up before it
+    assert h.stale_samples == {"a": 0, "b": 2}
     assert h.arrived("a") == 1.012 and h.arrived("zz") == -math.inf
 
 

@@ -1,0 +1,137 @@
+"""What a graph run did, in figures: control latency, late and stale samples, recorded messages.
+
+The plant feeds :class:`LatencyHistogram` with the time from publishing sample k to receiving a
+controller's force stamped k (the whole control path: decoupling, controller, three hops) and
+reports its quantiles with its counters; at the end of a run :func:`summarize` turns the plant's
+last report and the bag's message counts into one :class:`RunSummary` (``dcsms up: summary:``
+line and ``summary.json``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+#: Histogram range (s) and resolution: 20 bins per decade, so a quantile is read to +-6 %.
+LATENCY_MIN_S = 1e-5
+LATENCY_MAX_S = 10.0
+BINS_PER_DECADE = 20
+
+
+class LatencyHistogram:
+    """Latencies (s) in log-spaced bins: constant memory and O(1) work per sample.
+
+    Values below ``LATENCY_MIN_S`` fall in the first bin, above ``LATENCY_MAX_S`` in the last.
+    """
+
+    def __init__(self) -> None:
+        decades = math.log10(LATENCY_MAX_S / LATENCY_MIN_S)
+        self.bins = [0] * (int(round(decades * BINS_PER_DECADE)) + 1)
+        self.count = 0
+
+    def add(self, latency_s: float) -> None:
+        """Count one latency (s)."""
+        if latency_s <= LATENCY_MIN_S:
+            i = 0
+        else:
+            i = min(int(math.log10(latency_s / LATENCY_MIN_S) * BINS_PER_DECADE),
+                    len(self.bins) - 1)
+        self.bins[i] += 1
+        self.count += 1
+
+    def quantile(self, q: float) -> float:
+        """The ``q`` quantile (0..1) in s, the geometric centre of its bin; nan when empty."""
+        if self.count == 0:
+            return math.nan
+        rank = q * self.count
+        seen = 0
+        for i, n in enumerate(self.bins):
+            seen += n
+            if seen >= rank and n:
+                return LATENCY_MIN_S * 10.0 ** ((i + 0.5) / BINS_PER_DECADE)
+        return LATENCY_MAX_S
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """One run's figures.
+
+    Attributes
+    ----------
+    samples : int
+        Samples the plant published.
+    late : int
+        Samples that missed their deadline: real-time overruns plus lockstep timeouts.
+    stale : int
+        Samples at which a controller's force was stale and counted as zero (real time), after
+        its first arrival.
+    latency_p50_s, latency_p99_s : float
+        Control latency quantiles, s (nan: none measured).
+    recorded, expected : int or None
+        Messages of the per-sample streams in the bag, and how many were published (None: no
+        recording).
+    """
+
+    samples: int
+    late: int
+    stale: int
+    latency_p50_s: float
+    latency_p99_s: float
+    recorded: int | None = None
+    expected: int | None = None
+
+    def line(self) -> str:
+        """``samples N, late N (x %), stale forces N, control latency p50/p99 X/Y ms, ...``."""
+        pct = 100.0 * self.late / self.samples if self.samples else 0.0
+        rec = (f"recorded {self.recorded} of {self.expected} messages"
+               if self.recorded is not None else "not recorded")
+        return (f"samples {self.samples}, late {self.late} ({pct:.3g} %), stale forces "
+                f"{self.stale}, control latency p50/p99 {_ms(self.latency_p50_s)}/"
+                f"{_ms(self.latency_p99_s)} ms, {rec}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fields, and the late fraction."""
+        return {**asdict(self), "late_fraction": self.late / self.samples if self.samples
+                else 0.0}
+
+
+def _ms(s: float) -> str:
+    return "-" if math.isnan(s) else f"{s * 1e3:.3f}"
+
+
+def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
+              streams: list[str]) -> RunSummary:
+    """The summary of a run from the plant's last diagnostics and the bag's counts.
+
+    Parameters
+    ----------
+    plant : mapping
+        The plant's diagnostic key/values (strings) of its last report.
+    counts : mapping or None
+        Message count per topic in the bag (None: not recorded).
+    streams : list of str
+        The per-sample topics (one message per sample each) that were recorded.
+    """
+    samples = int(plant.get("sample", "0"))
+
+    def num(key: str) -> float:
+        try:
+            return float(plant.get(key, "nan"))
+        except ValueError:
+            return math.nan
+
+    late = int(plant.get("overruns", "0")) + int(plant.get("lockstep_timeouts", "0"))
+    recorded = expected = None
+    if counts is not None:
+        present = [s for s in streams if s in counts]
+        recorded = sum(counts[s] for s in present)
+        expected = samples * len(present)
+    return RunSummary(samples=samples, late=late, stale=int(plant.get("stale_samples", "0")),
+                      latency_p50_s=num("latency_p50_ms") * 1e-3,
+                      latency_p99_s=num("latency_p99_ms") * 1e-3,
+                      recorded=recorded, expected=expected)
+
+
+__all__ = ["LatencyHistogram", "RunSummary", "summarize"]

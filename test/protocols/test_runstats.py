@@ -1,0 +1,50 @@
+"""Run statistics: latency quantiles against numpy's, the summary from a plant report."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from dcsms_ros.protocols.runstats import BINS_PER_DECADE, LatencyHistogram, summarize
+
+#: half a bin in log space: the largest relative error of a quantile read from the histogram
+HALF_BIN = 10 ** (0.5 / BINS_PER_DECADE) - 1.0
+
+
+@pytest.mark.parametrize("q", [0.5, 0.9, 0.99])
+def test_latency_quantiles_match_numpy_within_half_a_bin(q: float) -> None:
+    """Log-normal latencies around 0.3 ms: each quantile within one bin of the exact one."""
+    rng = np.random.default_rng(3)
+    lat = np.exp(rng.normal(math.log(3e-4), 0.5, 20000))
+    h = LatencyHistogram()
+    for x in lat:
+        h.add(float(x))
+    exact = float(np.quantile(lat, q))
+    assert h.count == lat.size
+    assert abs(h.quantile(q) / exact - 1.0) <= 2 * HALF_BIN
+
+
+def test_latency_out_of_range_and_empty() -> None:
+    """Nothing counted: nan; beyond the range: the end bins, not an error."""
+    h = LatencyHistogram()
+    assert math.isnan(h.quantile(0.5))
+    h.add(0.0)
+    h.add(1e3)
+    assert h.quantile(0.0) < 2e-5 and h.quantile(1.0) > 5.0
+
+
+def test_summary_from_a_plant_report_and_bag_counts() -> None:
+    """late = overruns + lockstep timeouts; recorded of expected over the recorded streams."""
+    plant = {"sample": "4000", "overruns": "30", "lockstep_timeouts": "10",
+             "stale_samples": "7", "latency_p50_ms": "0.3100", "latency_p99_ms": "1.2000"}
+    counts = {"/a": 4000, "/b": 3990, "/dcsms/mode": 3}
+    s = summarize(plant, counts, ["/a", "/b", "/c"])
+    assert (s.samples, s.late, s.stale, s.recorded, s.expected) == (4000, 40, 7, 7990, 8000)
+    assert s.latency_p99_s == pytest.approx(1.2e-3)
+    assert s.line() == ("samples 4000, late 40 (1 %), stale forces 7, control latency "
+                        "p50/p99 0.310/1.200 ms, recorded 7990 of 8000 messages")
+    assert s.to_dict()["late_fraction"] == pytest.approx(0.01)
+    bare = summarize({"sample": "10"}, None, [])
+    assert bare.line().endswith("p50/p99 -/- ms, not recorded")
