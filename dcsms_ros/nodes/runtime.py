@@ -35,30 +35,31 @@ from dcsms_ros.nodes.bootstrap import STOP_EXCEPTIONS, ros_context, spin_until
 EXIT_CONFIG = 2
 
 
-#: SCHED_FIFO priority (1-99) for every thread of a node process; unset or 0 keeps the default
+#: SCHED_FIFO priority (1-99) of a node process's hot thread; unset or 0 keeps the default
 #: scheduler. ``dcsms up --rt-priority N`` sets it for the control path.
 RT_PRIORITY_ENV = graph.RT_PRIORITY_ENV
 
 
-def apply_rt_priority() -> str | None:
-    """Put this process under ``SCHED_FIFO`` at ``$DCSMS_RT_PRIORITY`` before rclpy starts, so
-    that the DDS reception threads, the executor and the hot thread all inherit it (as
-    ros2_control's controller_manager runs its update loop). Returns a warning when it cannot
-    (no CAP_SYS_NICE / rtprio limit, or a bad value), None otherwise; never raises."""
+def rt_priority_from_env() -> tuple[int, str | None]:
+    """The SCHED_FIFO priority ``$DCSMS_RT_PRIORITY`` asks for the hot thread (0: none) and a
+    warning for a bad value; never raises.
+
+    Only the hot thread gets it (:meth:`HotLoop.start`). The whole process under SCHED_FIFO
+    (its executor and Fast DDS's threads inherit the policy) hung 3 of 3 recorded 20 s runs
+    of the per-process graph on 2 cores: FIFO threads of equal priority are never time-sliced,
+    so a busy executor or DDS writer thread kept a core from the hot threads and starved every
+    normal process (the recorder, ``dcsms up``) whose acknowledgements the writers waited for.
+    """
     text = os.environ.get(RT_PRIORITY_ENV, "").strip()
     if not text or text == "0":
-        return None
+        return 0, None
     try:
         prio = int(text)
         if not 1 <= prio <= 99:
             raise ValueError
     except ValueError:
-        return f"{RT_PRIORITY_ENV}={text!r}: not an integer in 1..99; default scheduler kept"
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
-    except (OSError, AttributeError) as exc:
-        return f"SCHED_FIFO priority {prio} refused ({exc}); default scheduler kept"
-    return None
+        return 0, f"{RT_PRIORITY_ENV}={text!r}: not an integer in 1..99; default scheduler kept"
+    return prio, None
 
 
 class Stoppable:
@@ -86,13 +87,18 @@ def wait_acked(pubs: Sequence[Any], total_s: float = ACK_WAIT_S) -> None:
         pub.wait_for_all_acked(Duration(seconds=max(end - time.monotonic(), 0.0)))
 
 
-def spin_node(node: Node, executor: Executor, stop: Callable[[], bool]) -> None:
-    """Spin ``node`` (and its hot path) until ``stop()`` is true, the node finished, or the
-    context shut down; a failing hot-path handler raises here, as a failing callback would."""
+def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
+              rt_priority: int = 0) -> None:
+    """Spin ``node`` (and its hot path, under SCHED_FIFO ``rt_priority`` if 1-99) until
+    ``stop()`` is true, the node finished, or the context shut down; a failing hot-path
+    handler raises here, as a failing callback would."""
     executor.add_node(node)
     hot = getattr(node, "hot", None)
     if hot is not None:
         hot.start()
+        warning = hot.loop.prioritize(rt_priority) if hot.loop is not None else None
+        if warning:
+            node.get_logger().warning(warning)
 
     def done() -> bool:
         if hot is not None and hot.error is not None:
@@ -160,7 +166,7 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
     int
         0 after a signal or a normal finish, 2 after a configuration error.
     """
-    rt_warning = apply_rt_priority()
+    rt_priority, rt_warning = rt_priority_from_env()
     status = 0
     with ros_context(args, signals=True) as ros:
         node: Node | None = None
@@ -172,7 +178,7 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
                 MultiThreadedExecutor(num_threads=4, context=ros.context) if multithreaded
                 else SingleThreadedExecutor(context=ros.context))
             try:
-                spin_node(node, executor, lambda: bool(ros.stop))
+                spin_node(node, executor, lambda: bool(ros.stop), rt_priority)
             finally:
                 # let callbacks still running in worker threads end before the node goes away
                 if multithreaded:
