@@ -19,7 +19,7 @@ from typing import Any
 
 from dcsms_ros import core
 from dcsms_ros.core.config import SystemConfig, load_config, parse_override, with_overrides
-from dcsms_ros.core.modes import parse_mode
+from dcsms_ros.core.modes import Mode, parse_mode
 from dcsms_ros.core.safety import MIN_GM_DB, MIN_PM_DEG
 from dcsms_ros.errors import ConfigError, DcsmsError
 from dcsms_ros.jsonutil import jsonable
@@ -169,6 +169,19 @@ def print_model_check(cfg: SystemConfig) -> None:
     """Print :func:`model_check_lines` (and go on)."""
     for line in model_check_lines(cfg):
         print(line, flush=True)
+
+
+def refuse_unstable_start(cfg: SystemConfig, mode: Mode, allow_unstable: bool) -> None:
+    """Raise :class:`DcsmsError` when the graph would start in a ``mode`` the model calls
+    unstable and ``--allow-unstable`` was not given (the guard a switch passes)."""
+    if allow_unstable or mode is Mode.PASSIVE:
+        return
+    # deferred: python-control and the loop model, not for `dcsms --help`
+    from dcsms_ros.core.check import unstable_reason  # noqa: PLC0415 - deferred for --help
+
+    reason = unstable_reason(cfg, mode)
+    if reason is not None:
+        raise DcsmsError(f"--mode {mode.label}: {reason}; refused (--allow-unstable runs it)")
 
 
 def parse_excitations(cfg: Any, texts: Sequence[str]) -> list[Any]:

@@ -27,6 +27,7 @@ from dcsms_ros.cli.common import (
     parse_schedule,
     plant_config,
     print_model_check,
+    refuse_unstable_start,
 )
 from dcsms_ros.cli.up import add_deploy_options, build_graph, check_deploy_options, launch
 from dcsms_ros.core.config import with_overrides
@@ -174,6 +175,7 @@ def _graph(args: argparse.Namespace, cfg: Any, mode: Any, schedule: list[Any]) -
         bag, topic = parse_ground_spec(args.ground_from)
         load_ground(bag, topic, cfg.plant.rate_hz, cfg.plant.dof)
     print_model_check(cfg)
+    refuse_unstable_start(cfg, mode, args.allow_unstable)
     spec = build_graph(cfg, args, "lockstep", mode, args.duration, schedule)
     nm = spec.names
     recorded = [nm.config, nm.mode, *spec.stream_topics()]

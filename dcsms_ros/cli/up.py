@@ -23,6 +23,7 @@ from dcsms_ros.cli.common import (
     parse_excitations,
     parse_schedule,
     print_model_check,
+    refuse_unstable_start,
 )
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
@@ -185,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.excite_off:
         raise DcsmsError("--excite-off needs --excite SPEC")
     print_model_check(cfg)
+    refuse_unstable_start(cfg, mode, args.allow_unstable)
     observers = list(args.wait_for_subscribers)
     spec = build_graph(cfg, args, args.schedule, mode, args.duration or 0.0, events)
     if args.record is not None and args.schedule == "lockstep":

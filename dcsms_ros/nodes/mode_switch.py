@@ -92,6 +92,10 @@ class ModeSwitchNode(Node):
                                           "velocities and latch Passive on instability")
         self.guard = StabilityGuard(self, listen=False)
         self.guard.flat, self.guard.mode = dict(self.params.flat), self.mode
+        # the initial mode passes the guard a switch passes: nothing unstable runs at start
+        refused = self.guard.refuse_mode(self.mode, cfg)
+        if refused is not None:
+            raise ConfigError(f"node mode_switch: initial_mode: {refused}")
         self.params.vet = self.guard.vet
         self.num_stages = n
         self.tripped, self.trip_reason = False, ""

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from dcsms_ros.cli import main
+
+UNSTABLE = Path(__file__).resolve().parents[1] / "fixtures" / "tem_unstable.yaml"
 
 
 @pytest.mark.parametrize("extra, message", [
@@ -31,4 +35,20 @@ def test_composed_recorder_is_refused_by_sim_in_lockstep(tmp_path, capsys) -> No
     assert main(["sim", "--engine", "graph", "--composed", "--recorder", "composed",
                  "--duration", "0.1", "--out", str(out)]) == 2
     assert "--recorder composed" in capsys.readouterr().err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", [["up", "--lockstep"],
+                                     ["sim", "--engine", "graph", "--duration", "1"]])
+def test_an_unstable_initial_mode_is_refused(command: list[str], tmp_path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """The initial mode passes the guard a switch passes: DFBC on the unstable fixture is
+    refused with the model's pole in one line, exit 2, nothing started or written."""
+    out = tmp_path / "bag"
+    extra = ["--out", str(out)] if command[0] == "sim" else []
+    assert main([*command, "--mode", "DFBC", "--config", str(UNSTABLE), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("dcsms: error: --mode DFBC: DFBC is "
+                                                   "unstable"), err
+    assert "+0.0576 +0.4249j Hz" in err and "--allow-unstable" in err
     assert not out.exists()

@@ -106,3 +106,25 @@ def test_unstable_tuning_is_rejected_where_it_is_made(ctx: Any, cfg: SystemConfi
         assert not res.successful and "DFBC is unstable" in res.reason, res.reason
     assert ok.successful, ok.reason
     assert last == [1.2 * x for x in gain], last
+
+
+def test_mode_switch_refuses_an_unstable_initial_mode(domain) -> None:
+    """`ros2 run dcsms_ros mode_switch --ros-args -p initial_mode:=DFBC` on the unstable
+    fixture: one line naming the pole, exit 2; with allow_unstable:=true it runs DFBC."""
+    node = [sys.executable, "-m", "dcsms_ros.nodes.mode_switch", "--ros-args", "--params-file",
+            str(UNSTABLE), "-p", "initial_mode:=DFBC"]
+    refused = subprocess.run(node, capture_output=True, text=True, timeout=60, check=False)
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    assert refused.stderr.count("\n") == 1 and refused.stderr.startswith(
+        "dcsms: error: node mode_switch: initial_mode: DFBC is unstable"), refused.stderr
+    assert "+0.0576 +0.4249j Hz" in refused.stderr
+    allowed = subprocess.Popen([*node, "-p", "allow_unstable:=true"], stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True)
+    try:
+        time.sleep(4.0)  # started, judged and running (it exits at once when it refuses)
+        assert allowed.poll() is None
+    finally:
+        allowed.send_signal(signal.SIGINT)
+        out = allowed.communicate(timeout=30)[0]
+    assert allowed.returncode == 0, out
+    assert "allowed (allow_unstable)" in out and "mode DFBC;" in out, out
