@@ -4,9 +4,10 @@ The pinger publishes on ``/bench/ping``, the echo process (``python bench/pingpo
 republishes each message on ``/bench/pong``, and the pinger sends the next one only when the
 previous came back: round trips per second is the ceiling of any lockstep graph in which one
 step needs one message exchange between two processes. The pinger spins a
-SingleThreadedExecutor; the echo side that one or (``--executor events``) rclpy's
-EventsExecutor. ``--executor hot`` (echo) and ``ping="hot"`` serve the subscription from a
-minimal wait set instead, as the dcsms nodes' hot path does (``dcsms_ros/nodes/hotpath.py``).
+SingleThreadedExecutor (``--ping events``: rclpy's EventsExecutor); the echo side that one or
+(``--executor events``) the EventsExecutor, each driven by a ``spin_once`` loop.
+``--executor hot`` (echo) and ``ping="hot"`` serve the subscription from a minimal wait set
+instead, as the dcsms nodes' hot path does (``dcsms_ros/nodes/hotpath.py``).
 Reliable QoS, depth 1.
 """
 
@@ -59,7 +60,10 @@ def echo(executor: str) -> None:
     ex.add_node(node)
     print("ready", flush=True)
     with contextlib.suppress(KeyboardInterrupt, Exception):  # SIGTERM/SIGINT end the echo
-        ex.spin()
+        # EventsExecutor (7.1.6) is driven by spin_once: its spin() delivered 1 round trip in
+        # 3-6 s here (docs/performance.md)
+        while True:
+            ex.spin_once(timeout_sec=0.1)
 
 
 def measure(duration_s: float = 5.0, domain: int = 87, executor: str = "single",
@@ -126,7 +130,7 @@ def _ping(duration_s: float, executor: str, timeout_s: float,
         pub = node.create_publisher(TwistStamped, PING, 1)
         got: list[int] = []
         node.create_subscription(TwistStamped, PONG, lambda m: got.append(1), 1)
-        ex = _executor("single")  # EventsExecutor.spin_once does not return per callback
+        ex = _executor("events" if ping == "events" else "single")
         ex.add_node(node)
         msg = TwistStamped()
         deadline = time.monotonic() + timeout_s
@@ -172,7 +176,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--echo", action="store_true", help="run the echo side")
     ap.add_argument("--executor", choices=("single", "events", "hot"), default="single")
-    ap.add_argument("--ping", choices=("single", "hot"), default="single")
+    ap.add_argument("--ping", choices=("single", "hot", "events"), default="single")
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--domain", type=int, default=87)
     a = ap.parse_args()

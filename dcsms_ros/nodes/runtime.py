@@ -1,12 +1,15 @@
 """``main()`` of every node process: build the node, spin it, close it (:func:`run`).
 
-Executor: :class:`rclpy.executors.SingleThreadedExecutor`. Measured on this machine: a
-two-process ping-pong of ``JointState`` runs ~2,700 round trips/s with it, while
-``rclpy.experimental.EventsExecutor`` (Jazzy) delivered nothing in 20 s at 100 % CPU, so the
-experimental one is not used. Nodes that wait on service replies inside a callback
+Executor: :class:`rclpy.executors.SingleThreadedExecutor` for what is not per sample
+(parameters, services, timers). Nodes that wait on service replies inside a callback
 (``mode_switch``) use a :class:`~rclpy.executors.MultiThreadedExecutor` instead. The per-sample
 subscriptions do not go through the executor at all: a node's :class:`~.hotpath.HotPath`
-thread (started here if the node did not start it) serves them from a minimal wait set.
+thread serves them from a minimal wait set. Measured (``bench/pingpong.py``, two processes,
+5 s, 2026-11-25): that hot path made 7,680-7,820 round trips/s, rclpy's
+``EventsExecutor`` driven by a ``spin_once`` loop 7,630-7,960 at the same CPU, the
+``SingleThreadedExecutor`` 5,450-6,090 at ~1.7x the CPU; the ``EventsExecutor``'s own
+``spin()`` made 1 round trip in 3-6 s. The executor thread wakes a few times a second, so
+replacing it is not worth a second executor kind here (docs/performance.md).
 
 Start and shutdown go through :func:`.bootstrap.ros_context`: SIGINT and SIGTERM set a flag
 (rclpy's handlers are not installed), the spin loop ends, the node publishes its final reports
