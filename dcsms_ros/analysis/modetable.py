@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from dcsms_ros.analysis import estimators as est
+from dcsms_ros.analysis.uncertainty import band_dof
 
 #: Where the reference resonance is searched (Hz): isolation-table modes live here.
 RESONANCE_RANGE_HZ = (1.0, 30.0)
@@ -62,6 +63,12 @@ def resonance_band_rms(f: np.ndarray, psd: np.ndarray, f_r: float) -> float:
     return est.band_rms_around(f, psd, f_r, HALF_WIDTH_OCT)
 
 
+def resonance_band_dof(x: np.ndarray, fs: float, f_r: float) -> float:
+    """Equivalent degrees of freedom of :func:`resonance_band_rms`'s band power of the record
+    ``x`` sampled at ``fs`` Hz (:func:`.uncertainty.band_dof`)."""
+    return band_dof(x, fs, f_r * 2.0 ** -HALF_WIDTH_OCT, f_r * 2.0 ** HALF_WIDTH_OCT)
+
+
 def normalize(value: float, reference: float) -> tuple[float, float]:
     """``(normalized, attenuation_db)`` of a band RMS against the reference's."""
     if not reference > 0:
@@ -76,26 +83,36 @@ def format_table(rows: Sequence[dict[str, Any]], axes: Sequence[str]) -> str:
     Parameters
     ----------
     rows : sequence of dict
-        ``{"mode": str, "axes": {axis: {"normalized": float, "attenuation_db": float}}}``.
+        ``{"mode": str, "axes": {axis: {"normalized": float, "attenuation_db": float,
+        "normalized_ci": [lo, hi] (optional)}}}``.
     axes : sequence of str
         Axis names in column order.
     """
-    head = f"{'mode':<10}" + "".join(f"{a.upper() + ' norm':>12}{'dB':>8}" for a in axes)
+    head = f"{'mode':<10}" + "".join(f"{a.upper() + ' norm':>12}{'95 % CI':>16}{'dB':>8}"
+                                     for a in axes)
     lines = [head, "-" * len(head)]
     for r in rows:
         cells = []
         for a in axes:
             ax = r["axes"].get(a, {})
             n, db = ax.get("normalized"), ax.get("attenuation_db")
-            cells.append(f"{_num(n, '.3f'):>12}{_num(db, '+.1f'):>8}")
+            cells.append(f"{_num(n, '.3f'):>12}{interval(ax.get('normalized_ci')):>16}"
+                         f"{_num(db, '+.1f'):>8}")
         flag = "  UNSTABLE" if r.get("stability", {}).get("unstable") else ""
         lines.append(f"{r['mode']:<10}" + "".join(cells) + flag)
     return "\n".join(lines)
+
+
+def interval(ci: Sequence[float] | None) -> str:
+    """``[lo, hi]`` of a normalised value's interval (``-`` when there is none)."""
+    if ci is None or not all(np.isfinite(c) for c in ci):
+        return "-"
+    return f"[{ci[0]:.3f}, {ci[1]:.3f}]"
 
 
 def _num(x: float | None, fmt: str) -> str:
     return "-" if x is None or not np.isfinite(x) else format(x, fmt)
 
 
-__all__ = ["HALF_WIDTH_OCT", "RESONANCE_RANGE_HZ", "format_table", "normalize",
-           "refine_peak", "resonance_band_rms", "resonance_frequency"]
+__all__ = ["HALF_WIDTH_OCT", "RESONANCE_RANGE_HZ", "format_table", "interval", "normalize",
+           "refine_peak", "resonance_band_dof", "resonance_band_rms", "resonance_frequency"]

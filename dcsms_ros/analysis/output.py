@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from dcsms_ros.analysis import plots
+from dcsms_ros.analysis import modetable, plots
 from dcsms_ros.analysis.paper import CITATION, within
 from dcsms_ros.analysis.summary import Summary, dumps
 from dcsms_ros.analysis.tables import write_spectra
@@ -120,13 +120,15 @@ def _fmt(x: Any, spec: str) -> str:
 
 
 def _md_table4(s: Summary) -> str:
-    head = "| mode | " + " | ".join(f"{a.upper()} normalized | {a.upper()} dB" for a in s.axes)
-    rows = [head + " | stability |", "|---|" + "---:|---:|" * len(s.axes) + "---|"]
+    head = "| mode | " + " | ".join(f"{a.upper()} normalized | 95 % interval | {a.upper()} dB"
+                                    for a in s.axes)
+    rows = [head + " | stability |", "|---|" + "---:|---:|---:|" * len(s.axes) + "---|"]
     for seg in s.segments:
         cells = []
         for a in s.axes:
             ax = seg["axes"][a]
-            cells += [_fmt(ax.get("normalized"), ".3f"), _fmt(ax.get("attenuation_db"), "+.1f")]
+            cells += [_fmt(ax.get("normalized"), ".3f"), modetable.interval(
+                ax.get("normalized_ci")), _fmt(ax.get("attenuation_db"), "+.1f")]
         st = seg.get("stability", {})
         grow = ", ".join(f"{g['body']} {g['axis']} grows {g['rate_per_s']:.2g} /s"
                          for g in st.get("growing", []))

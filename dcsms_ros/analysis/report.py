@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from dcsms_ros.analysis import estimators as est
-from dcsms_ros.analysis import frf, modetable, output, timefreq
+from dcsms_ros.analysis import frf, modetable, output, timefreq, uncertainty
 from dcsms_ros.analysis import paper as paper_table
 from dcsms_ros.analysis.criteria import evaluate
 from dcsms_ros.analysis.modelfrf import LoopFrf
@@ -26,9 +26,10 @@ from dcsms_ros.analysis.segments import (
 from dcsms_ros.analysis.series import AXIS_NAMES
 from dcsms_ros.analysis.stability import envelope
 from dcsms_ros.analysis.summary import Summary, dumps
+from dcsms_ros.analysis.transients import settle_times
 from dcsms_ros.core.check import Stability, stability
 from dcsms_ros.core.config import SystemConfig
-from dcsms_ros.core.modes import parse_mode
+from dcsms_ros.core.modes import ALL_MODES, parse_mode
 from dcsms_ros.errors import DcsmsError
 
 #: An applied force within this fraction of its limit counts as saturated.
@@ -37,7 +38,8 @@ SATURATION_FRACTION = 0.999
 
 def analyze(bags: Sequence[str | Path], reference: str = "passive",
             out_dir: str | Path | None = None, config: SystemConfig | None = None,
-            progress: Progress | None = None, settle_s: float = SETTLE_S,
+            progress: Progress | None = None,
+            settle_s: float | Mapping[str, float] | None = None, from_rest: bool = False,
             export: str | None = None,
             blrms_bands: Sequence[tuple[float, float]] = timefreq.DEFAULT_BANDS,
             paper: bool | None = None) -> Summary:
@@ -55,8 +57,13 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
         Overrides the configuration recorded on ``/dcsms/config``.
     progress : callable(done, total), optional
         Reading progress per bag.
-    settle_s : float
-        Time dropped after every mode switch (s).
+    settle_s : float or mapping of mode label to float, optional
+        Time dropped after every mode switch (s), or after a switch into each mode; default:
+        per mode, until the transient has decayed in the analysed band by the recorded
+        configuration's model (:func:`.transients.settle_times`), :data:`.segments.SETTLE_S`
+        without one.
+    from_rest : bool
+        The bags start from rest (simulations): the first segment loses the settle time too.
     export : str, optional
         Also write every segment's spectra as ``npz``, ``csv`` or ``mat`` tables into
         ``out_dir`` (:mod:`.tables`).
@@ -89,9 +96,12 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
         if ref.stamp_ns.size == 0:
             warnings.append(f"{data.path}: no velocity samples")
             continue
-        segs = split_segments(data.modes, int(ref.stamp_ns[0]), int(ref.stamp_ns[-1]),
-                              settle_s)
-        work.extend((data, seg, cfg) for seg in split_excited(segs, data.excitation, settle_s))
+        settle: float | Mapping[str, float] = settle_s if settle_s is not None else SETTLE_S
+        if settle_s is None and cfg is not None:
+            settle = {k: v[0] for k, v in settle_times(cfg, ALL_MODES).items()}
+        segs = split_segments(data.modes, int(ref.stamp_ns[0]), int(ref.stamp_ns[-1]), settle,
+                              from_rest)
+        work.extend((data, seg, cfg) for seg in split_excited(segs, data.excitation, settle))
     axes = _axes(work)
     summary = Summary([str(b) for b in bags], ref_mode.label, axes, warnings=warnings,
                       config_source=cfg_source, blrms_bands_hz=[list(b) for b in blrms_bands])
@@ -153,7 +163,7 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
     js: dict[str, Any] = {
         "bag": str(data.path), "mode": seg.label, "segment": label,
         "excited": ({"stage": f"stage{exc_stage}", "axes": exc_axes} if seg.excited else None),
-        "t_start_s": seg.t0_ns * 1e-9,
+        "t_start_s": seg.t0_ns * 1e-9, "settled_s": (seg.t0_ns - seg.switch_ns) * 1e-9,
         "t_end_s": seg.t1_ns * 1e-9, "duration_s": seg.duration_s, "fs_hz": al.fs,
         "samples": n, "missing_samples": al.missing, "nperseg": nper,
         "resolution_hz": al.fs / nper, "source": data.source, "axes": {},
@@ -200,7 +210,7 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
             ax["model"][k] = e.compare()
         js["axes"][a] = ax
         arrays[a] = {"f": f, "psd": p_top, "tfs": trans.tfs, "estimates": ests,
-                     "psd_bodies": psds}
+                     "psd_bodies": psds, "top": al.bodies[top][:, j]}
     js["forces"] = _forces(data, seg, cfg)
     js["stability"] = (_stability(al.bodies, stages, axes, al.fs, summary, where,
                                   _model_stability(cfg, seg, verdicts))
@@ -368,12 +378,19 @@ def _table4(results: list[dict[str, Any]], ref_label: str, summary: Summary) -> 
         f_r = modetable.resonance_frequency(f, np.sqrt(p))
         summary.resonance_hz[a] = f_r
         base = modetable.resonance_band_rms(f, p, f_r)
+        dof = {id(r): modetable.resonance_band_dof(r["arrays"][a]["top"], r["json"]["fs_hz"],
+                                                   f_r) for r in results}
         for r in results:
             arr = r["arrays"][a]
             val = modetable.resonance_band_rms(arr["f"], arr["psd"], f_r)
             norm, db = modetable.normalize(val, base)
+            # the reference is 1 by definition; any other segment is an independent record
+            ci = (norm, norm) if r is ref else uncertainty.ratio_interval(
+                norm, dof[id(r)], dof[id(ref)])
             r["json"]["axes"][a].update(resonance_band_rms_mps=val, normalized=norm,
+                                        normalized_ci=list(ci), band_dof=dof[id(r)],
                                         attenuation_db=db)
+
 
 
 __all__ = ["Summary", "analyze", "dumps"]

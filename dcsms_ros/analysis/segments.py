@@ -3,6 +3,7 @@ parts) and align the bodies sample by sample."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,7 +84,8 @@ def _parse(label: str) -> Mode | None:
 
 
 def split_segments(modes: list[ModeEvent], t_first_ns: int, t_last_ns: int,
-                   settle_s: float = SETTLE_S) -> list[Segment]:
+                   settle_s: float | Mapping[str, float] = SETTLE_S,
+                   from_rest: bool = False) -> list[Segment]:
     """Constant-mode windows between the switches, each shortened by ``settle_s`` at its start.
 
     Parameters
@@ -92,32 +94,44 @@ def split_segments(modes: list[ModeEvent], t_first_ns: int, t_last_ns: int,
         Switches in time order (header-stamp times).
     t_first_ns, t_last_ns : int
         First and last sample stamp of the data (ns).
-    settle_s : float
-        Time dropped after each switch (s); the very first segment is not shortened unless it
-        starts with a switch inside the data.
+    settle_s : float or mapping of mode label to float
+        Time dropped after each switch (s), or after a switch into each mode (others:
+        :data:`SETTLE_S`); the very first segment is not shortened unless it starts with a
+        switch inside the data or ``from_rest``.
+    from_rest : bool
+        The data start with the system at rest (a simulation): the first segment's response
+        builds up as after a switch, and loses the settle time too.
 
     Returns
     -------
     list of Segment
         In time order; a bag without ``/dcsms/mode`` gives one ``unknown`` segment.
     """
-    settle = int(round(settle_s * 1e9))
     if not modes:
         return [Segment("unknown", None, t_first_ns, t_last_ns + 1, t_first_ns)]
     out = []
     for i, ev in enumerate(modes):
+        settle = int(round(settle_for(settle_s, ev.label) * 1e9))
         start = ev.stamp_ns
         # The first label is often the latched mode recorded before any data: nothing switched
         # at the start of the data, so there is no transient to drop.
-        t0 = start if (i == 0 and start <= t_first_ns) else start + settle
+        t0 = start if (i == 0 and start <= t_first_ns and not from_rest) else \
+            max(start, t_first_ns) + settle
         t1 = modes[i + 1].stamp_ns if i + 1 < len(modes) else t_last_ns + 1
         if t1 > t0:
             out.append(Segment(ev.label, _parse(ev.label), t0, t1, start))
     return out
 
 
+def settle_for(settle_s: float | Mapping[str, float], label: str) -> float:
+    """The settle time (s) after a switch into ``label`` (:func:`split_segments`)."""
+    if isinstance(settle_s, Mapping):
+        return float(settle_s.get(label, SETTLE_S))
+    return float(settle_s)
+
+
 def split_excited(segments: list[Segment], excitation: TopicSeries | None,
-                  settle_s: float = SETTLE_S) -> list[Segment]:
+                  settle_s: float | Mapping[str, float] = SETTLE_S) -> list[Segment]:
     """Split each segment where an excitation starts or stops; the part after each such change
     loses ``settle_s`` (the response's transient), as after a mode switch.
 
@@ -128,8 +142,8 @@ def split_excited(segments: list[Segment], excitation: TopicSeries | None,
     excitation : TopicSeries or None
         ``/dcsms/force/excitation``; a sample is excited when any component is non-zero, and
         zero gaps shorter than :data:`EXCITE_GAP_S` do not count.
-    settle_s : float
-        Time dropped after every start or stop (s).
+    settle_s : float or mapping of mode label to float
+        Time dropped after every start or stop (s), per mode as in :func:`split_segments`.
     """
     if excitation is None or excitation.stamp_ns.size == 0:
         return segments
@@ -145,9 +159,9 @@ def split_excited(segments: list[Segment], excitation: TopicSeries | None,
         on[idx[j]:idx[j + 1]] = True
     change = np.flatnonzero(np.diff(on.astype(np.int8))) + 1
     edges = [(int(stamps[i]), bool(on[i])) for i in change]
-    settle = int(round(settle_s * 1e9))
     out = []
     for seg in segments:
+        settle = int(round(settle_for(settle_s, seg.label) * 1e9))
         k = int(np.searchsorted(stamps, seg.t0_ns))
         state = bool(on[min(k, on.size - 1)]) if on.size else False
         t0 = seg.t0_ns
@@ -200,4 +214,4 @@ def align(data: BagData, seg: Segment) -> Aligned:
 _EXCITE = "/excitation"  # a key no body has
 
 __all__ = ["EXCITE_GAP_S", "MIN_SEGMENT_S", "SETTLE_S", "Aligned", "Segment", "align",
-           "split_excited", "split_segments"]
+           "settle_for", "split_excited", "split_segments"]

@@ -36,8 +36,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--blrms", default="1-3,3-10,10-30", metavar="BANDS",
                    help="bands (Hz) of the band-limited RMS trends in the report and of each "
                    "segment's blrms_mps (default 1-3,3-10,10-30)")
-    p.add_argument("--settle", type=float, default=1.0, metavar="S",
-                   help="seconds dropped after each mode switch (default 1.0)")
+    p.add_argument("--settle", type=float, default=None, metavar="S",
+                   help="seconds dropped after each mode switch (default: per mode, the fade "
+                   "plus 3 time constants of the new loop's slowest pole near the analysed band, "
+                   "from the recorded configuration; at least 1 s)")
     p.add_argument("--paper", action="store_true", default=None,
                    help="compare with the paper's Table 4 (default: for a 6-DOF configuration)")
     p.set_defaults(func=run)

@@ -47,6 +47,15 @@ def test_analyze_writes_report_and_orders_table4(bag: Path, tmp_path: Path) -> N
     forces = doc["segments"][1]["forces"]
     assert forces[0]["rms_n"] > 0 and forces[0]["limit_n"] == 400.0  # 4 coils x 100 N
     assert "DFBC+FFC" in s.table()
+    # every normalised value has its 95 % interval (the reference's is the value itself), and
+    # each segment says how long after its switch it starts (the model's settle time)
+    for seg in doc["segments"]:
+        lo, hi = seg["axes"]["z"]["normalized_ci"]
+        assert lo <= seg["axes"]["z"]["normalized"] <= hi and seg["axes"]["z"]["band_dof"] > 2
+        assert seg["settled_s"] >= 0.0
+    assert doc["segments"][0]["axes"]["z"]["normalized_ci"] == [1.0, 1.0]
+    assert all(seg["settled_s"] >= 1.0 for seg in doc["segments"][1:])
+    assert "95 % interval" in md and "95 % CI" in s.table()
 
 
 def test_cli_prints_mode_table_and_json(bag: Path, capsys: pytest.CaptureFixture) -> None:

@@ -28,6 +28,14 @@ def test_split_drops_settle_after_each_switch() -> None:
     assert len(unknown) == 1 and unknown[0].mode is None
 
 
+def test_settle_per_mode_and_from_rest() -> None:
+    """A settle time per mode label (others 1 s); a run from rest loses it at the start too."""
+    ev = [ModeEvent(0, 0, "Passive"), ModeEvent(0, 10 * S, "FBC"), ModeEvent(0, 25 * S, "DFBC")]
+    segs = split_segments(ev, 0, 40 * S - 1, {"Passive": 6.0, "FBC": 2.5}, from_rest=True)
+    assert [(s.t0_ns, s.t1_ns) for s in segs] == [(6 * S, 10 * S), (int(12.5 * S), 25 * S),
+                                                  (26 * S, 40 * S)]
+
+
 def test_bag_modes_and_config(tmp_path: Path) -> None:
     """read_bag places switches on the data's time axis and returns the recorded config."""
     modes = (("Passive", 0.0, 0.0), ("FBC", 1e4, 0.0))

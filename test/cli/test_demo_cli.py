@@ -49,10 +49,11 @@ def test_demo_refuses_to_replace_a_foreign_directory(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_demo_with_a_mode_subset_is_judged_on_the_modes_it_ran(tmp_path, capsys):
-    """--modes Passive,DFBC+FFC: exit 0, the ordering of those two, the skipped ones named."""
+    """--modes Passive,DFBC+FFC: exit 0, the ordering of those two, the skipped ones named.
+    20 s per mode: with 7 s the value's 95 % interval spans 0.07-0.30 around the 0.1 bar."""
     out = tmp_path / "sub"
     assert main(["demo", "--engine", "batch", "--config", str(TABLE1), "--modes",
-                 "Passive,DFBC+FFC", "--segment", "7", "--out", str(out)]) == 0
+                 "Passive,DFBC+FFC", "--segment", "20", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "Passive > DFBC+FFC: reproduced (not run: FBC, FBC+FFC, DFBC)" in text
 
@@ -80,23 +81,29 @@ def test_default_demo_is_the_papers_tem_experiment(tmp_path, capsys):
             assert abs(ours / model[seg["mode"]][axis] - 1.0) < 0.5, (seg["mode"], axis, ours)
 
 
-def _summary_from(values):
-    """A demo summary holding normalised X / Y / Z values per mode label."""
-    segs = [{"mode": m, "axes": {a: {"normalized": v[i]} for i, a in enumerate("xyz")},
+def _summary_from(values, spread=1.3):
+    """A demo summary holding normalised X / Y / Z values per mode label, each with the
+    interval [value / spread, value * spread]."""
+    segs = [{"mode": m, "axes": {a: {"normalized": v[i], "normalized_ci": [v[i] / spread,
+                                                                           v[i] * spread]}
+                                 for i, a in enumerate("xyz")},
              "forces": [], "stability": {}} for m, v in values.items()]
     return SimpleNamespace(segments=segs, axes=["x", "y", "z"], paper=None)
 
 
 @pytest.mark.slow
-def test_order_verdict_tolerates_only_swaps_the_model_cannot_resolve(capsys):
-    """A swap of X's DFBC and DFBC+FFC (model 1.3x apart) is named and passes; a swap of Z's
-    FBC and DFBC+FFC (model 14x apart) fails the verdict."""
+def test_order_verdict_tolerates_only_swaps_the_record_cannot_resolve(capsys):
+    """A swap of X's DFBC and DFBC+FFC (model 1.3x apart, intervals +-30 %: overlapping) is
+    named and passes; a swap of Z's FBC and DFBC+FFC (model 14x apart: disjoint intervals)
+    fails the verdict, and so does the close swap without intervals."""
     model = predict_table4(load_config(TEM), ALL_MODES)
     base = {m: [model.values[m][a] for a in "xyz"] for m in demo.ORDER}
     close = {m: list(v) for m, v in base.items()}
     close["DFBC"][0], close["DFBC+FFC"][0] = base["DFBC+FFC"][0], base["DFBC"][0]
     assert demo._verdict_3d(_summary_from(close), model)
-    assert "reproduced within the scatter" in capsys.readouterr().out
+    assert "reproduced within the 95 % intervals" in capsys.readouterr().out
+    assert not demo._verdict_3d(_summary_from(close, spread=1.0), model)
+    assert "NOT reproduced" in capsys.readouterr().out
     far = {m: list(v) for m, v in base.items()}
     far["FBC"][2], far["DFBC+FFC"][2] = base["DFBC+FFC"][2], base["FBC"][2]
     assert not demo._verdict_3d(_summary_from(far), model)
