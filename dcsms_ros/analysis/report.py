@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from dcsms_ros.analysis import estimators as est
-from dcsms_ros.analysis import frf, modetable, output, timefreq
+from dcsms_ros.analysis import frf, groundnorm, modetable, output, timefreq
 from dcsms_ros.analysis import paper as paper_table
 from dcsms_ros.analysis.criteria import evaluate
 from dcsms_ros.analysis.modelfrf import LoopFrf
@@ -374,6 +374,23 @@ def _table4(results: list[dict[str, Any]], ref_label: str, summary: Summary) -> 
             norm, db = modetable.normalize(val, base)
             r["json"]["axes"][a].update(resonance_band_rms_mps=val, normalized=norm,
                                         attenuation_db=db)
+        _ground_corrected(results, ref, a, f_r)
+
+
+def _ground_corrected(results: list[dict[str, Any]], ref: dict[str, Any], axis: str,
+                      f_r: float) -> None:
+    """``normalized_ground`` (:mod:`.groundnorm`) of every segment on ``axis`` that recorded
+    the floor, on the reference's frequency grid; absent otherwise."""
+    grid = ref["arrays"][axis]["f"]
+    usable = [r for r in results if "ground" in r["arrays"][axis]["psd_bodies"]
+              and r["arrays"][axis]["tfs"] and r["arrays"][axis]["f"].shape == grid.shape]
+    if ref not in usable:
+        return
+    segs = [(r["arrays"][axis]["psd"], r["arrays"][axis]["psd_bodies"]["ground"],
+             r["arrays"][axis]["tfs"][-1].h) for r in usable]
+    values = groundnorm.normalized_cv(segs, grid, f_r, usable.index(ref))
+    for r, v in zip(usable, values, strict=True):
+        r["json"]["axes"][axis]["normalized_ground"] = v
 
 
 __all__ = ["Summary", "analyze", "dumps"]
