@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from dcsms_ros.analysis import estimators as est
-from dcsms_ros.analysis import frf, modetable, output, timefreq, uncertainty
+from dcsms_ros.analysis import frf, output, timefreq
 from dcsms_ros.analysis import paper as paper_table
 from dcsms_ros.analysis.criteria import evaluate
 from dcsms_ros.analysis.modelfrf import LoopFrf
@@ -26,6 +26,7 @@ from dcsms_ros.analysis.segments import (
 from dcsms_ros.analysis.series import AXIS_NAMES
 from dcsms_ros.analysis.stability import envelope
 from dcsms_ros.analysis.summary import Summary, dumps
+from dcsms_ros.analysis.table4 import table4
 from dcsms_ros.analysis.transients import settle_times
 from dcsms_ros.core.check import Stability, stability
 from dcsms_ros.core.config import SystemConfig
@@ -112,7 +113,7 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
         r = _segment(data, seg, cfg, axes, summary, models, verdicts)
         if r is not None:
             results.append(r)
-    _table4(results, ref_mode.label, summary)
+    table4(results, ref_mode.label, summary)
     summary.segments = [r["json"] for r in results]
     cfg_any = next((c for _, _, c in work if c is not None), None)
     if paper or (paper is None and cfg_any is not None and cfg_any.plant.dof == 6):
@@ -359,38 +360,6 @@ def _force_limit(cfg: SystemConfig | None, name: str, index: int, channels: int)
     if k is None and channels == len(stages):
         k = index  # one lumped channel per stage, in cascade order
     return per * (stages[k].actuator_count if k is not None else 1)
-
-
-def _table4(results: list[dict[str, Any]], ref_label: str, summary: Summary) -> None:
-    refs = [r for r in results if r["json"]["mode"].lower() == ref_label.lower()]
-    if not refs:
-        summary.warnings.append(f"no {ref_label} segment: Table 4 not normalised")
-        return
-    quiet = [r for r in refs if not r["json"]["excited"]]
-    if quiet:
-        refs = quiet  # an excitation is not the disturbance the paper's table compares
-    else:
-        summary.warnings.append(f"every {ref_label} segment is excited: Table 4 is normalised "
-                                "to a response that includes the excitation")
-    ref = max(refs, key=lambda r: r["json"]["duration_s"])
-    for a in summary.axes:
-        f, p = ref["arrays"][a]["f"], ref["arrays"][a]["psd"]
-        f_r = modetable.resonance_frequency(f, np.sqrt(p))
-        summary.resonance_hz[a] = f_r
-        base = modetable.resonance_band_rms(f, p, f_r)
-        dof = {id(r): modetable.resonance_band_dof(r["arrays"][a]["top"], r["json"]["fs_hz"],
-                                                   f_r) for r in results}
-        for r in results:
-            arr = r["arrays"][a]
-            val = modetable.resonance_band_rms(arr["f"], arr["psd"], f_r)
-            norm, db = modetable.normalize(val, base)
-            # the reference is 1 by definition; any other segment is an independent record
-            ci = (norm, norm) if r is ref else uncertainty.ratio_interval(
-                norm, dof[id(r)], dof[id(ref)])
-            r["json"]["axes"][a].update(resonance_band_rms_mps=val, normalized=norm,
-                                        normalized_ci=list(ci), band_dof=dof[id(r)],
-                                        attenuation_db=db)
-
 
 
 __all__ = ["Summary", "analyze", "dumps"]

@@ -19,8 +19,9 @@ class Summary:
     segments : list of dict
         One per analysed segment (see ``summary.json``: ``mode``, ``segment`` (the mode, and
         the excitation when the segment is excited), ``axes.<a>.normalized``,
-        ``axes.<a>.attenuation_db``, ``vc``, ``estimates`` (what the segment can estimate, with
-        the usable bins), ``model`` (the loop model against every usable bin), ``forces`` ...).
+        ``axes.<a>.attenuation_db``, ``axes.<a>.normalized_ground`` (:mod:`.groundnorm`),
+        ``vc``, ``estimates`` (what the segment can estimate, with the usable bins),
+        ``model`` (the loop model against every usable bin), ``forces`` ...).
     reference : str
         Label of the reference mode; ``resonance_hz`` its resonance per axis (Hz).
     files : list of str

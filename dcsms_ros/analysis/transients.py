@@ -8,7 +8,8 @@ see a transient an octave away (the TEM's rocking modes at 0.4-0.5 Hz, time cons
 the 0.02 Hz sensor extension, 11 s, leave a 2-2.5 Hz band untouched). So the drop is the fade
 plus :data:`TIME_CONSTANTS` times the slowest time constant among the poles within
 :data:`POLE_BAND_OCT` of a table axis' resonance (amplitude down to e^-3 = 5 %, energy 0.25 %),
-and at least :data:`.segments.SETTLE_S`.
+and at least :data:`.segments.SETTLE_S`. A mode the model calls unstable keeps
+:data:`.segments.SETTLE_S`: its growth is what the segment must show.
 """
 
 from __future__ import annotations
@@ -47,6 +48,10 @@ def settle_times(cfg: SystemConfig, modes: Sequence[Mode]) -> dict[str, tuple[fl
     f_r = list(resonances(TopVelocity(cfg, Mode.PASSIVE), table_axes(cfg)).values())
     out = {}
     for m in modes:
+        if any(p.s_hz.real >= 0.0 for p in loop_poles(cfg, m)):
+            # an unstable loop has no transient that ends: keep the growth the segment shows
+            out[m.label] = (SETTLE_S, math.inf)
+            continue
         tau = band_time_constant(cfg, m, f_r)
         out[m.label] = (max(SETTLE_S, cfg.control.fade_time_s + TIME_CONSTANTS * tau), tau)
     return out

@@ -100,3 +100,11 @@ def test_coverage_of_the_95_percent_interval_against_the_batch_engine() -> None:
             ratios.append(hi / lo)
     assert 0.90 <= np.mean(hits) <= 0.98, np.mean(hits)
     assert np.median(ratios) < 3.0
+
+
+def test_an_unstable_mode_keeps_the_short_settle() -> None:
+    """The unstable fixture's DFBC: no transient ends, so only the 1 s floor is dropped and the
+    growing envelope stays in the analysed part (test_stability.py reads it)."""
+    cfg = load_config(ROOT / "test" / "fixtures" / "tem_unstable.yaml")
+    times = settle_times(cfg, [Mode.DFBC, Mode.FBC])
+    assert times["DFBC"] == (1.0, np.inf) and times["FBC"][0] > 3.0
