@@ -36,8 +36,8 @@ NODE_CLASSES = {
     "recorder": "dcsms_ros.nodes.recorder:Recorder",
 }
 SCHEDULES = ("lockstep", "realtime")
-#: Environment variable: SCHED_FIFO priority (1-99) of a node process (read before rclpy
-#: starts, :func:`dcsms_ros.nodes.runtime.apply_rt_priority`); set for the control path by
+#: Environment variable: SCHED_FIFO priority (1-99) of a node process's hot thread
+#: (:func:`dcsms_ros.nodes.runtime.place_threads`); set for the control path by
 #: ``--rt-priority`` and the launch argument ``rt_priority``.
 RT_PRIORITY_ENV = "DCSMS_RT_PRIORITY"
 #: Writer history of lockstep streams (:func:`dcsms_ros.nodes.qos.stream_pub`), and so the

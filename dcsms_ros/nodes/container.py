@@ -14,8 +14,9 @@ the other node's subscription at once, which makes a hop cost microseconds inste
 process switch. In real time the plant's pacer runs the same cycle at its deadlines. Services,
 parameters, timers, ``/clock`` and the mode switch stay on a multi-threaded executor.
 
-``--rt-priority N`` puts the driver thread (only it) under SCHED_FIFO. ``--record OUT
-[TOPIC ...]`` runs the recorder node in this process too (``dcsms up --recorder composed``).
+``--rt-priority N`` puts the driver thread under SCHED_FIFO (the DDS receive threads one
+below, :func:`.runtime.place_threads`). ``--record OUT [TOPIC ...]`` runs the recorder node in
+this process too (``dcsms up --recorder composed``).
 Exit status: 0 after SIGINT/SIGTERM or a finished run, 2 after a configuration error (one line).
 """
 
@@ -39,7 +40,7 @@ from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, GraphSpec, NodeSpec, spec_fro
 from dcsms_ros.nodes import hotpath
 from dcsms_ros.nodes.bootstrap import STOP_EXCEPTIONS, ros_context, spin_until
 from dcsms_ros.nodes.recorder import Recorder
-from dcsms_ros.nodes.runtime import close_nodes, config_error, quiesce
+from dcsms_ros.nodes.runtime import close_nodes, config_error, place_threads, quiesce
 
 #: Executor threads: services and parameters of six nodes, the mode switch's calls.
 EXECUTOR_THREADS = 3
@@ -82,9 +83,11 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
             nodes = create_nodes(spec, ctx)
             for nd in nodes:
                 executor.add_node(nd)
-            loop.start(rt_priority)
-            if loop.rt_warning:
-                nodes[-1].get_logger().warning(loop.rt_warning)
+            loop.start()
+            warning = (place_threads(rt_priority, loop.native_id)
+                       if rt_priority and loop.native_id is not None else None)
+            if warning:
+                nodes[-1].get_logger().warning(warning)
             plant = next((nd for nd in nodes if hasattr(nd, "barrier")), None)
 
             def done() -> bool:

@@ -166,6 +166,11 @@ class HotPath:
         self.loop.add(self)
         self.loop.start()
 
+    @property
+    def thread_id(self) -> int | None:
+        """Kernel id of the thread serving this path (None before :meth:`start` or when off)."""
+        return self.loop.native_id if self.loop is not None else None
+
     def wake(self) -> None:
         """Make the loop run the ticks now (e.g. when stepping starts)."""
         if self.loop is not None:
@@ -219,8 +224,12 @@ class HotLoop:
         self._thread: threading.Thread | None = None
         self._guard: GuardCondition | None = None
         self.error: BaseException | None = None
-        self.rt_warning: str | None = None
         self.wakeups = 0
+
+    @property
+    def native_id(self) -> int | None:
+        """Kernel id of the running thread (None before :meth:`start`)."""
+        return self._thread.native_id if self._thread is not None else None
 
     def add(self, path: HotPath) -> None:
         """Serve ``path`` too (before :meth:`start`)."""
@@ -228,13 +237,13 @@ class HotLoop:
             raise RuntimeError(f"{self.name}: cannot add a hot path to a running loop")
         self.paths.append(path)
 
-    def start(self, rt_priority: int = 0) -> None:
-        """Start the thread; ``rt_priority`` 1-99 puts it (only it) under SCHED_FIFO."""
+    def start(self) -> None:
+        """Start the thread (its scheduling: :func:`dcsms_ros.nodes.runtime.place_threads`)."""
         if self._thread is not None or not self.paths:
             return
         self._guard = GuardCondition(None, None, context=self.context)
         self.context.on_shutdown(self._on_shutdown)
-        self._thread = threading.Thread(target=self._run, args=(rt_priority,), name=self.name,
+        self._thread = threading.Thread(target=self._run, name=self.name,
                                         daemon=True)
         self._thread.start()
 
@@ -263,13 +272,7 @@ class HotLoop:
             with contextlib.suppress(Exception):  # the context may be gone already
                 self._guard.trigger()
 
-    def _run(self, rt_priority: int) -> None:
-        if rt_priority:
-            try:
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt_priority))
-            except (OSError, AttributeError) as exc:
-                self.rt_warning = (f"SCHED_FIFO priority {rt_priority} refused ({exc}); "
-                                   f"default scheduler kept")
+    def _run(self) -> None:
         try:
             self._loop()
         except BaseException as exc:  # noqa: BLE001 - re-raised by the process's spin loop

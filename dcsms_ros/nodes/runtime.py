@@ -17,8 +17,11 @@ status 2.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import re
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -35,29 +38,53 @@ from dcsms_ros.nodes.bootstrap import STOP_EXCEPTIONS, ros_context, spin_until
 EXIT_CONFIG = 2
 
 
-#: SCHED_FIFO priority (1-99) for every thread of a node process; unset or 0 keeps the default
+#: SCHED_FIFO priority (1-99) of a node process's hot thread; unset or 0 keeps the default
 #: scheduler. ``dcsms up --rt-priority N`` sets it for the control path.
 RT_PRIORITY_ENV = graph.RT_PRIORITY_ENV
 
+#: Fast DDS's transport receive threads ("dds.shm.<port>", "dds.udp.<port>"): they wake the hot
+#: thread's wait set, so they run just under it. Its event, watchdog and discovery threads stay
+#: on the default scheduler.
+_DDS_RECEIVE = re.compile(r"dds\.(shm|udp)\.\d+")
 
-def apply_rt_priority() -> str | None:
-    """Put this process under ``SCHED_FIFO`` at ``$DCSMS_RT_PRIORITY`` before rclpy starts, so
-    that the DDS reception threads, the executor and the hot thread all inherit it (as
-    ros2_control's controller_manager runs its update loop). Returns a warning when it cannot
-    (no CAP_SYS_NICE / rtprio limit, or a bad value), None otherwise; never raises."""
+
+def rt_priority_from_env() -> tuple[int, str | None]:
+    """``$DCSMS_RT_PRIORITY`` as (priority 1-99 or 0 for off, warning or None); never raises."""
     text = os.environ.get(RT_PRIORITY_ENV, "").strip()
     if not text or text == "0":
-        return None
+        return 0, None
     try:
         prio = int(text)
         if not 1 <= prio <= 99:
             raise ValueError
     except ValueError:
-        return f"{RT_PRIORITY_ENV}={text!r}: not an integer in 1..99; default scheduler kept"
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
-    except (OSError, AttributeError) as exc:
-        return f"SCHED_FIFO priority {prio} refused ({exc}); default scheduler kept"
+        return 0, f"{RT_PRIORITY_ENV}={text!r}: not an integer in 1..99; default scheduler kept"
+    return prio, None
+
+
+def place_threads(prio: int, hot_tid: int) -> str | None:
+    """Put thread ``hot_tid`` of this process under ``SCHED_FIFO`` ``prio`` and the DDS
+    receive threads under ``prio - 1``; every other thread keeps the default scheduler.
+
+    Called once the node exists, so the DDS threads are there to be named. The whole process
+    is *not* made real-time (it was, before rclpy started, so that every thread inherited it):
+    on two cores two FIFO executor threads of the plant and the decoupling then held both CPUs
+    while their FIFO hot threads of equal priority, which never preempt them, stopped - the
+    plant stopped stepping and the recorder, on the default scheduler, got only the kernel's
+    5 % real-time throttling share (docs/performance.md, 2026-11-25). Returns a warning when a
+    thread cannot be placed (no CAP_SYS_NICE / rtprio limit), None otherwise; never raises.
+    """
+    targets = [(hot_tid, prio)]
+    with contextlib.suppress(OSError):
+        for task in os.listdir("/proc/self/task"):
+            with contextlib.suppress(OSError), open(f"/proc/self/task/{task}/comm") as f:
+                if _DDS_RECEIVE.fullmatch(f.read().strip()):
+                    targets.append((int(task), max(prio - 1, 1)))
+    for tid, p in targets:
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(p))
+        except (OSError, AttributeError) as exc:
+            return f"SCHED_FIFO priority {p} refused ({exc}); default scheduler kept"
     return None
 
 
@@ -86,13 +113,21 @@ def wait_acked(pubs: Sequence[Any], total_s: float = ACK_WAIT_S) -> None:
         pub.wait_for_all_acked(Duration(seconds=max(end - time.monotonic(), 0.0)))
 
 
-def spin_node(node: Node, executor: Executor, stop: Callable[[], bool]) -> None:
+def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
+              rt_priority: int = 0) -> None:
     """Spin ``node`` (and its hot path) until ``stop()`` is true, the node finished, or the
-    context shut down; a failing hot-path handler raises here, as a failing callback would."""
+    context shut down; a failing hot-path handler raises here, as a failing callback would.
+    ``rt_priority`` (1-99): :func:`place_threads` for the hot thread (the executor's thread
+    when the node has no hot path)."""
     executor.add_node(node)
     hot = getattr(node, "hot", None)
     if hot is not None:
         hot.start()
+    if rt_priority:
+        tid = hot.thread_id if hot is not None else None
+        warning = place_threads(rt_priority, tid if tid is not None else threading.get_native_id())
+        if warning:
+            node.get_logger().warning(warning)
 
     def done() -> bool:
         if hot is not None and hot.error is not None:
@@ -160,7 +195,7 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
     int
         0 after a signal or a normal finish, 2 after a configuration error.
     """
-    rt_warning = apply_rt_priority()
+    rt_priority, rt_warning = rt_priority_from_env()
     status = 0
     with ros_context(args, signals=True) as ros:
         node: Node | None = None
@@ -172,7 +207,7 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
                 MultiThreadedExecutor(num_threads=4, context=ros.context) if multithreaded
                 else SingleThreadedExecutor(context=ros.context))
             try:
-                spin_node(node, executor, lambda: bool(ros.stop))
+                spin_node(node, executor, lambda: bool(ros.stop), rt_priority)
             finally:
                 # let callbacks still running in worker threads end before the node goes away
                 if multithreaded:
