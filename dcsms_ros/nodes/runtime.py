@@ -1,11 +1,13 @@
 """``main()`` of every node process: build the node, spin it, close it (:func:`run`).
 
-Executor: :class:`rclpy.executors.SingleThreadedExecutor`. Measured on this machine: a
-two-process ping-pong of ``JointState`` runs ~2,700 round trips/s with it, while
-``rclpy.experimental.EventsExecutor`` (Jazzy) delivered nothing in 20 s at 100 % CPU, so the
-experimental one is not used. Nodes that wait on service replies inside a callback
-(``mode_switch``) use a :class:`~rclpy.executors.MultiThreadedExecutor` instead. The per-sample
-subscriptions do not go through the executor at all: a node's :class:`~.hotpath.HotPath`
+Executor: :class:`rclpy.executors.SingleThreadedExecutor`. ``rclpy.experimental.EventsExecutor``
+is not used yet, though not because it fails: only its ``spin()`` called from a background thread
+delivered nothing here; driven by a ``spin_once`` loop, a two-process ping-pong made 5.2 k round
+trips/s with it against 3.9-4.7 k with this one, at ~35 % less CPU (issue 21; not yet measured
+inside this runtime, where the per-sample work is on the hot thread anyway). Nodes that wait on
+service replies inside a callback (``mode_switch``) use a
+:class:`~rclpy.executors.MultiThreadedExecutor` instead. The per-sample subscriptions do not go
+through the executor at all: a node's :class:`~.hotpath.HotPath`
 thread (started here if the node did not start it) serves them from a minimal wait set.
 
 Start and shutdown go through :func:`.bootstrap.ros_context`: SIGINT and SIGTERM set a flag
