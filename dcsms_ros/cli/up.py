@@ -46,9 +46,9 @@ def add_deploy_options(p: argparse.ArgumentParser) -> None:
                    "(default) or in the composed one (real time only: in lockstep it falls "
                    "behind and loses samples)")
     p.add_argument("--rt-priority", type=int, default=0, metavar="N",
-                   help="run the control path (plant, decoupling, controllers; composed: the "
-                   "driver thread) under SCHED_FIFO priority N (1-99; needs root or "
-                   "CAP_SYS_NICE; 0: default scheduler)")
+                   help="run the hot thread of each control-path process (plant, decoupling, "
+                   "controllers; composed: the driver thread) under SCHED_FIFO priority N (1-99; "
+                   "needs root or CAP_SYS_NICE; 0: default scheduler)")
     p.add_argument("--allow-unstable", action="store_true",
                    help="let mode switches and tunings the model calls unstable through (the "
                    "instability trip is the last line of defence)")
