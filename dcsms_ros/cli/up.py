@@ -25,6 +25,7 @@ from dcsms_ros.cli.common import (
     print_model_check,
 )
 from dcsms_ros.core import topics
+from dcsms_ros.core.check import unstable_reason
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode, parse_mode
 from dcsms_ros.errors import DcsmsError
@@ -64,6 +65,14 @@ def check_deploy_options(args: argparse.Namespace, schedule: str = "lockstep") -
         raise DcsmsError("--recorder composed loses samples of a lockstep run (the driver "
                          "thread starves it); use --recorder process")
     return topics.check_namespace(args.namespace)
+
+
+def refuse_unstable_start(cfg: SystemConfig, mode: Mode, allow_unstable: bool) -> None:
+    """Raise (one line, exit 2) if the model calls the initial ``mode`` unstable with ``cfg``,
+    unless ``allow_unstable``: a start passes the same guard as a switch."""
+    reason = unstable_reason(cfg, mode)
+    if reason is not None and not allow_unstable:
+        raise DcsmsError(f"--mode {mode.label}: {reason}; refused (--allow-unstable runs it)")
 
 
 def register(subparsers: Any) -> None:
@@ -185,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.excite_off:
         raise DcsmsError("--excite-off needs --excite SPEC")
     print_model_check(cfg)
+    refuse_unstable_start(cfg, mode, args.allow_unstable)
     observers = list(args.wait_for_subscribers)
     spec = build_graph(cfg, args, args.schedule, mode, args.duration or 0.0, events)
     if args.record is not None and args.schedule == "lockstep":
@@ -199,5 +209,5 @@ def run(args: argparse.Namespace) -> int:
     return status
 
 
-__all__ = ["add_deploy_options", "build_graph", "check_deploy_options", "launch", "register",
-           "run"]
+__all__ = ["add_deploy_options", "build_graph", "check_deploy_options", "launch",
+           "refuse_unstable_start", "register", "run"]

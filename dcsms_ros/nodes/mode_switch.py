@@ -93,6 +93,10 @@ class ModeSwitchNode(Node):
         self.guard = StabilityGuard(self, listen=False)
         self.guard.flat, self.guard.mode = dict(self.params.flat), self.mode
         self.params.vet = self.guard.vet
+        # the initial mode passes the same guard as a switch: an unstable start is refused
+        refused = self.guard.refuse_mode(self.mode)
+        if refused is not None:
+            raise ConfigError(f"node mode_switch: initial_mode {self.mode.label}: {refused}")
         self.num_stages = n
         self.tripped, self.trip_reason = False, ""
         self.trip_at = (0, 0)
