@@ -162,8 +162,9 @@ class Supervisor:
     mode : Mode
         The user's starting mode.
     band_gain : mapping Mode -> ndarray, shape (N, dof), optional
-        Stage band RMS per unit ground band RMS that the model predicts in each mode (1); a
-        mode not in it (or None) is judged by the floor level and growth alone.
+        Stage band RMS per unit ground band RMS (every ground axis as loud) that the model
+        predicts in each mode (1; :func:`~dcsms_ros.core.floor.floor_gain`); a mode not in
+        it (or None) is judged by the floor level and growth alone.
     stable : callable, optional
         ``stable(mode)`` is the model's verdict; default: every mode is stable.
     """
@@ -258,7 +259,7 @@ class Supervisor:
         gain = self.band_gain.get(self.mode)
         if gain is None:
             return 0.0
-        floor = gain * np.asarray(cp.ground_rms)[None, :]
+        floor = gain * float(np.max(cp.ground_rms))  # every ground axis as loud as the loudest
         return float(np.max(np.asarray(cp.stage_rms) / (floor + 1e-15)))
 
     def _instability(self, cp: Checkpoint, stage: float) -> str | None:
