@@ -21,6 +21,7 @@ from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.core.modes import ControllerId, Mode, controller_ids, enabled_controllers
 from dcsms_ros.core.simulator import PlantSimulator, check_plant
+from dcsms_ros.core.supervisor import CheckpointFeed, Supervisor
 from dcsms_ros.core.trip import Trip, TripChecker
 from dcsms_ros.errors import ConfigError
 
@@ -136,8 +137,14 @@ class Simulation:
                  schedule: Sequence[tuple[float, Mode]] = (), ground: Array | None = None,
                  table: Array | None = None, trip: bool = True,
                  fast: bool | None = None, excite: Array | None = None,
-                 plant: SystemConfig | None = None) -> None:
+                 plant: SystemConfig | None = None,
+                 supervisor: Supervisor | None = None) -> None:
         self.cfg = cfg
+        # the supervisor (core/supervisor.py) is stepped on the object path only for now:
+        # with one, the run falls back from the fast path
+        self.supervisor = supervisor if trip else None
+        self._feed = CheckpointFeed(cfg) if self.supervisor is not None else None
+        fast = False if self.supervisor is not None else fast
         n = cfg.plant.num_stages
         if plant is not None:
             check_plant(cfg, plant)
@@ -177,7 +184,11 @@ class Simulation:
         while self._ei < len(self.events) and self.events[self._ei][0] <= self.k:
             m = self.events[self._ei][1]
             self._ei += 1
-            if self.trip is not None:
+            if self.supervisor is not None:
+                if self.supervisor.request(m, self.k - 1, (self.k - 1) * self.cfg.plant.dt):
+                    self.refused.append((self.k, m.label))
+                    continue
+            elif self.trip is not None:
                 if m is not Mode.PASSIVE:
                     self.refused.append((self.k, m.label))
                 continue
@@ -269,14 +280,31 @@ class Simulation:
             self.k += 1
             if (self.checker is not None and self.trip is None and self.k % check == 0):
                 _, trip = self._judge(vel[pushed:k + 1], self.checker)
-                pushed = k + 1
-                if trip is not None:
+                if self._feed is not None:
+                    self._supervise(vel[pushed:k + 1, 0], applied[pushed:k + 1])
+                elif trip is not None:
                     self._latch(trip)
+                pushed = k + 1
             if progress is not None and k % every == 0:
                 progress(k / steps)
         if self.checker is not None and self.trip is None and pushed < steps:
             self._judge(vel[pushed:steps], self.checker)  # a partial checkpoint block
+            if self._feed is not None:
+                self._feed.feed(vel[pushed:steps, 0], applied[pushed:steps])
         return True
+
+    def _supervise(self, ground: Array, applied: Array) -> None:
+        """Step the supervisor at the checkpoint ending at sample ``self.k - 1``; the mode it
+        chooses runs from ``self.k``."""
+        assert self._feed is not None and self.supervisor is not None
+        assert self.checker is not None
+        self._feed.feed(ground, applied)
+        before = self.supervisor.mode
+        self.supervisor.step(self._feed.checkpoint(self.k - 1, self.checker))
+        mode = self.supervisor.mode
+        if mode is not before:
+            self._targets(enabled_controllers(mode, self.cfg.plant.num_stages))
+            self.modes.append((self.k, mode.label))
 
     def _run_fast(self, steps: int, out: tuple[Array, ...],
                   progress: Callable[[float], None] | None) -> bool:
