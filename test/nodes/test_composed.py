@@ -100,8 +100,10 @@ def test_lockstep_trip_lands_on_the_batch_sample(composed: bool, domain: int, cf
     bad = _unstable(cfg)
     gain = "[" + ",".join(repr(x) for x in bad.params["feedback.stage2.gain"]) + "]"
     out = tmp_path / "bag"
+    # --allow-unstable: the initial mode passes the stability guard, and this one must trip
     _sim(["--engine", "graph", "--mode", "dfbc", "--duration", "0.3", "--out", str(out),
-          "--set", f"feedback.stage2.gain={gain}", *(["--composed"] if composed else [])],
+          "--set", f"feedback.stage2.gain={gain}", "--allow-unstable",
+          *(["--composed"] if composed else [])],
          tmp_path / "sim.log")
     ref = simulate(bad, Mode.DFBC, 0.3)
     assert ref.trip is not None and ref.trip.sample == 99
