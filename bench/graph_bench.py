@@ -246,16 +246,14 @@ def run(smoke: bool, tmp: Path, rt_seconds: float | None = None) -> list[Row]:
     return rows
 
 
-#: CPU per sample (us) each node of the per-process graph may spend (issue 21), recorder per
-#: message.
+#: CPU per sample (us) each node of the per-process graph may spend, recorder per message.
 CPU_TARGETS_US = {"plant_simulator": 100.0, "sensor_decoupling": 60.0, "fb_stage1": 40.0,
                   "fb_stage2": 40.0, "ff_stage1": 40.0, "recorder": 15.0}
 
 
 def cpu_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
-    """CPU (us) per sample of each process of the per-process real-time graph under
-    ``--rt-priority 50``, recording off and on (as ``dcsms up --realtime --rt-priority 50
-    [--record OUT]``); the recorder's per message it wrote."""
+    """CPU (us) per sample of each process of the real-time graph, ``--rt-priority 50``,
+    recording off and on (``dcsms up --realtime``); the recorder's per message written."""
     runs = {rec: run_graph("realtime", rt_s, base + 10 + bool(rec), tmp,
                            timeout_s=rt_s * 3 + 120, rt_priority=0 if smoke else 50,
                            record=rec)
@@ -267,20 +265,18 @@ def cpu_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
             continue
         if name == "recorder":
             written = sum((runs["process"]["recorded"] or {}).values())
-            # CPU share x run length / messages written
             value = on * rt_s / max(written, 1) * 1e6
             note = f"{written} messages in {rt_s:g} s; {100 * on:.0f} % of a core"
-            base_v, base_name = None, None
+            base_v = base_name = None
         else:
             rate = runs["process"]["rate_hz"]
             value = on / rate * 1e6
             base_v = off / rate * 1e6 if off is not None else None
             base_name = "recording off"
             note = f"{100 * on:.0f} % of a core at {rate:g} Hz"
-        rows.append({"name": f"graph: CPU per sample, one process per node, recording on, "
-                             f"{name}", "value": value, "unit": "us",
-                     "baseline_name": base_name, "baseline": base_v, "target_max": target,
-                     "note": note})
+        rows.append({"name": f"graph: CPU per sample, per process, recording on, {name}",
+                     "value": value, "unit": "us", "baseline_name": base_name,
+                     "baseline": base_v, "target_max": target, "note": note})
     return rows
 
 
