@@ -21,7 +21,7 @@ from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.core.modes import ControllerId, Mode, controller_ids, enabled_controllers
 from dcsms_ros.core.simulator import PlantSimulator, check_plant
-from dcsms_ros.core.supervisor import CheckpointFeed, Supervisor
+from dcsms_ros.core.supervisor import CheckpointFeed, Supervisor, Transition
 from dcsms_ros.core.trip import Trip, TripChecker
 from dcsms_ros.errors import ConfigError
 
@@ -56,6 +56,8 @@ class SimResult:
     excitation : ndarray, shape (K, N, dof), or None
         The excitation wrench added to each stage's controller wrenches (N, N*m), zero from a
         trip on; None when the run had none.
+    supervision : list of Transition
+        The supervisor's transitions in this block (empty without a supervisor).
     """
 
     cfg: SystemConfig
@@ -72,6 +74,7 @@ class SimResult:
     trip: Trip | None = None
     refused: list[tuple[int, str]] = field(default_factory=list)
     excitation: Array | None = None
+    supervision: list[Transition] = field(default_factory=list)
 
 
 def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None = None,
@@ -239,6 +242,7 @@ class Simulation:
                np.empty((steps, self.sim.num_actuators)))
         k0 = self.k
         modes0 = len(self.modes)
+        sup0 = len(self.supervisor.transitions) if self.supervisor is not None else 0
         refused0 = len(self.refused)
         ok = (self._run_fast(steps, out, progress) if self._loop is not None
               else self._run_objects(steps, out, progress))
@@ -254,7 +258,9 @@ class Simulation:
         return SimResult(self.cfg, t, truth, raw, vel, wrench, applied, modes,
                          [c.name for c in self.sim.channels],
                          list(self.sim.actuator_names), counters, self.trip,
-                         self.refused[refused0:], exc)
+                         self.refused[refused0:], exc,
+                         self.supervisor.transitions[sup0:] if self.supervisor is not None
+                         else [])
 
     def _run_objects(self, steps: int, out: tuple[Array, ...],
                      progress: Callable[[float], None] | None) -> bool:

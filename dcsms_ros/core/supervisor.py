@@ -151,8 +151,9 @@ class Transition:
 
     @property
     def label(self) -> str:
-        """``STATE mode: reason``: the text of ``<ns>/supervisor/state``."""
-        return f"{self.state.value} {self.mode.label}: {self.reason}"
+        """``STATE MODE at T s: reason``, the text of ``<ns>/supervisor/state``; T is the plant
+        time of ``sample`` (a String has no stamp, and a bag's receive time is wall time)."""
+        return f"{self.state.value} {self.mode.label} at {self.t_s:.4f} s: {self.reason}"
 
 
 @dataclass
