@@ -158,7 +158,7 @@ class GraphSpec:
         (the plant skips its truth topics when nobody subscribes)."""
         nm = self.names
         return ([nm.velocity(b) for b in topics.body_names(self.num_stages)]
-                + [nm.actuators_applied, nm.mode, nm.config])
+                + [nm.actuators_applied, nm.mode, nm.config, nm.supervisor_state])
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (YAML/JSON) of the spec; :func:`spec_from_dict` reads it back."""

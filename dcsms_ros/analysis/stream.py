@@ -71,6 +71,7 @@ class StreamResult:
     trip: Any = None
     refused: list[tuple[int, str]] = field(default_factory=list)
     restarted: bool = False
+    supervision: list[Any] = field(default_factory=list)  # the supervisor's Transitions
 
 
 def layouts(cfg: SystemConfig, channel_names: Sequence[str], actuator_names: Sequence[str],
@@ -273,8 +274,8 @@ def stream_bag(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path,
                ground: NDArray[np.float64] | None = None, storage: str = "mcap",
                clock: bool = False, block_s: float = BLOCK_S,
                progress: Callable[[float], None] | None = None,
-               excite: Sequence[ExcitationSpec] = (), plant: SystemConfig | None = None
-               ) -> StreamResult:
+               excite: Sequence[ExcitationSpec] = (), plant: SystemConfig | None = None,
+               allow_unstable: bool = False) -> StreamResult:
     """Simulate ``duration_s`` and write the bag ``out`` block by block (see the module notes).
 
     ``excite`` (checked specifications, as ``dcsms sim --excite``) adds an actuator excitation,
@@ -285,9 +286,9 @@ def stream_bag(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path,
     """
     args = (cfg, mode, duration_s, out, seed, schedule, ground, storage, clock, block_s,
             progress)
-    res = _stream(*args, None, excite, plant)
+    res = _stream(*args, None, excite, plant, allow_unstable)
     if res is None:
-        res = _stream(*args, False, excite, plant)
+        res = _stream(*args, False, excite, plant, allow_unstable)
         assert res is not None
         res.restarted = True
     return res
@@ -297,16 +298,18 @@ def _stream(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path, seed: i
             schedule: Sequence[tuple[float, Mode]], ground: NDArray[np.float64] | None,
             storage: str, clock: bool, block_s: float,
             progress: Callable[[float], None] | None, fast: bool | None,
-            excite: Sequence[ExcitationSpec] = (), plant: SystemConfig | None = None
-            ) -> StreamResult | None:
+            excite: Sequence[ExcitationSpec] = (), plant: SystemConfig | None = None,
+            allow_unstable: bool = False) -> StreamResult | None:
     steps = int(round(duration_s * cfg.plant.rate_hz))
     block = max(1, int(round(block_s * cfg.plant.rate_hz)))
-    sim = Simulation(cfg, mode, seed, schedule, ground, trip=True, fast=fast, plant=plant)
+    sim = Simulation(cfg, mode, seed, schedule, ground, trip=True, fast=fast, plant=plant,
+                     allow_unstable=allow_unstable)
     exc = (Excitation(cfg, excite, cfg.disturbance.seed if seed is None else seed, duration_s)
            if excite else None)
     writer = _Writer(cfg, out, storage, clock, exc.stage - 1 if exc is not None else None)
     modes: list[tuple[int, str]] = []
     refused: list[tuple[int, str]] = []
+    supervision: list[Any] = []
     res: SimResult | None = None
     try:
         for k in range(0, steps, block):
@@ -318,6 +321,7 @@ def _stream(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path, seed: i
                 return None
             modes += res.mode
             refused += res.refused
+            supervision += res.supervision
             writer.put(res)
             if progress is not None:
                 progress(min(k + block, steps) / steps)
@@ -326,7 +330,8 @@ def _stream(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path, seed: i
         writer.abort()
         raise
     counters = res.counters if res is not None else {}
-    return StreamResult(steps, counts, counters, modes, sim.trip, refused)
+    return StreamResult(steps, counts, counters, modes, sim.trip, refused,
+                        supervision=supervision)
 
 
 __all__ = ["BLOCK_S", "MAX_DURATION_S", "StreamResult", "TopicLayout", "bytes_per_sample",

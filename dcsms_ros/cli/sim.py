@@ -135,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
         res = stream_bag(cfg, mode, args.duration, args.out, schedule=schedule, ground=ground,
                          storage=args.storage, clock=args.clock,
                          progress=_Bar("simulate", args.duration * cfg.plant.rate_hz
-                                       > PROGRESS_MIN_STEPS), excite=specs, plant=plant)
+                                       > PROGRESS_MIN_STEPS), excite=specs, plant=plant,
+                         allow_unstable=args.allow_unstable)
         wall = max(time.perf_counter() - t0, 1e-9)
     for w in caught:
         print(f"dcsms: warning: {w.message}", file=sys.stderr)
@@ -143,6 +144,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}: {res.samples} samples ({args.duration:g} s), {total} messages on "
           f"{len(res.counts)} topics in {wall:.1f} s ({args.duration / wall:.1f}x real time, "
           f"{total / wall:.0f} msg/s)")
+    for tr in res.supervision:
+        print(f"dcsms: supervisor: {tr.label}", file=sys.stderr)
     if res.trip is not None:
         print(f"dcsms: warning: instability trip at t={(res.trip.sample + 1) / cfg.plant.rate_hz:g}"
               f" s: {res.trip.reason}; Passive from there"
@@ -178,7 +181,7 @@ def _graph(args: argparse.Namespace, cfg: Any, mode: Any, schedule: list[Any]) -
     refuse_unstable_start(cfg, mode, args.allow_unstable)
     spec = build_graph(cfg, args, "lockstep", mode, args.duration, schedule)
     nm = spec.names
-    recorded = [nm.config, nm.mode, *spec.stream_topics()]
+    recorded = [nm.config, nm.mode, nm.supervisor_state, *spec.stream_topics()]
     spec = build_graph(cfg, args, "lockstep", mode, args.duration, schedule,
                        observers=spec.lockstep_observed(recorded))
     t0 = time.perf_counter()

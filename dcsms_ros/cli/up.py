@@ -52,6 +52,10 @@ def add_deploy_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--allow-unstable", action="store_true",
                    help="let mode switches and tunings the model calls unstable through (the "
                    "instability trip is the last line of defence)")
+    p.add_argument("--no-supervisor", action="append_const", dest="overrides",
+                   const="supervisor.enabled=false",
+                   help="no supervisor: any instability trip latches Passive until reset_trip "
+                   "(same as --set supervisor.enabled=false; docs/reliability.md)")
 
 
 def check_deploy_options(args: argparse.Namespace, schedule: str = "lockstep") -> str:

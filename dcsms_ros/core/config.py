@@ -148,6 +148,27 @@ class ControlConfig:
 
 
 @dataclass(frozen=True)
+class SupervisorConfig:
+    """``supervisor.*`` of the schema (SI units; :class:`~.supervisor.SupervisorSettings`
+    documents each)."""
+
+    enabled: bool = True
+    ride_mode: str = "fbc"
+    ride_ground_mps: float = 2e-4
+    ride_force_ratio: float = 0.8
+    quiet_fraction: float = 0.5
+    recover_after_s: float = 5.0
+    settle_s: float = 1.0
+    excess_ratio: float = 4.0
+    growth_per_s: float = 2.0
+    floor_memory_s: float = 2.0
+    hold_s: float = 2.0
+    backoff: float = 2.0
+    max_attempts: int = 3
+    attempts_window_s: float = 120.0
+
+
+@dataclass(frozen=True)
 class DisturbanceConfig:
     seed: int = 1
     ground_rms_mps: Vec3 = (2e-6, 2e-6, 5e-6)
@@ -167,6 +188,7 @@ class SystemConfig:
     feedforward: FeedforwardConfig
     control: ControlConfig
     disturbance: DisturbanceConfig
+    supervisor: SupervisorConfig = SupervisorConfig()
     source: str = "<defaults>"
     params: Mapping[str, Any] | None = None  # the flat, validated values (dotted names)
 
@@ -295,6 +317,7 @@ def _build(v: Mapping[str, Any], source: str) -> SystemConfig:
         feedforward=FeedforwardConfig(**_section(v, "feedforward")),
         control=ControlConfig(**_section(v, "control")),
         disturbance=DisturbanceConfig(**_section(v, "disturbance")),
+        supervisor=SupervisorConfig(**_section(v, "supervisor")),
         source=source,
         params=dict(v),
     )

@@ -11,6 +11,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,7 +22,8 @@ from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.core.modes import ControllerId, Mode, controller_ids, enabled_controllers
 from dcsms_ros.core.simulator import PlantSimulator, check_plant
-from dcsms_ros.core.supervisor import CheckpointFeed, Supervisor, Transition
+from dcsms_ros.core.supervision import make_supervisor
+from dcsms_ros.core.supervisor import CheckpointFeed, State, Supervisor, Transition
 from dcsms_ros.core.trip import Trip, TripChecker
 from dcsms_ros.errors import ConfigError
 
@@ -82,7 +84,7 @@ def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None 
              progress: Callable[[float], None] | None = None,
              fast: bool | None = None, table: Array | None = None,
              trip: bool = True, excite: Array | None = None,
-             plant: SystemConfig | None = None) -> SimResult:
+             plant: SystemConfig | None = None, allow_unstable: bool = False) -> SimResult:
     """Run the closed loop for ``duration_s`` seconds.
 
     Parameters
@@ -110,7 +112,8 @@ def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None 
     table : ndarray, shape (K, N, dof), optional
         Wrenches added to the table forces of the first K samples (N, N*m).
     trip : bool
-        Run the instability trip (:mod:`.trip`) as the mode-switch node does (default True).
+        Run the instability trip (:mod:`.trip`) and, with ``supervisor.enabled``, the
+        supervisor (:mod:`.supervisor`) as the mode-switch node does (default True).
     excite : ndarray, shape (K, N, dof), optional
         Excitation wrench per stage for the first K samples (N, N*m; :mod:`.excitation`),
         added to the controllers' wrenches before allocation and clipping; off from a trip on.
@@ -119,12 +122,16 @@ def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None 
         ``cfg``, which then only sets up the controllers, the decoupling (its low-frequency
         extension) and the trip, as on a rig whose true parameters are not known exactly
         (:func:`.simulator.check_plant`).
+    allow_unstable : bool
+        The supervisor may re-engage a mode the model calls unstable (as ``allow_unstable``
+        lets the mode-switch node run one).
     """
     steps = int(round(duration_s * cfg.plant.rate_hz))
     args = (cfg, mode, seed, schedule, ground, table, trip)
-    res = Simulation(*args, fast=fast, excite=excite, plant=plant).run(steps, progress)
+    kw: dict[str, Any] = {"excite": excite, "plant": plant, "allow_unstable": allow_unstable}
+    res = Simulation(*args, fast=fast, **kw).run(steps, progress)
     if res is None:
-        res = Simulation(*args, fast=False, excite=excite, plant=plant).run(steps, progress)
+        res = Simulation(*args, fast=False, **kw).run(steps, progress)
     assert res is not None
     return res
 
@@ -133,7 +140,9 @@ class Simulation:
     """A closed-loop run that advances block by block (:meth:`run`); the blocks of one
     Simulation concatenate to what a single :func:`simulate` call returns.
 
-    Parameters are those of :func:`simulate` (``schedule`` times are from t = 0 of the run).
+    Parameters are those of :func:`simulate` (``schedule`` times are from t = 0 of the run);
+    ``supervisor`` replaces the one ``cfg.supervisor`` describes (built when
+    ``supervisor.enabled`` and ``trip``; without one a trip latches Passive).
     """
 
     def __init__(self, cfg: SystemConfig, mode: Mode, seed: int | None = None,
@@ -141,13 +150,12 @@ class Simulation:
                  table: Array | None = None, trip: bool = True,
                  fast: bool | None = None, excite: Array | None = None,
                  plant: SystemConfig | None = None,
-                 supervisor: Supervisor | None = None) -> None:
+                 supervisor: Supervisor | None = None, allow_unstable: bool = False) -> None:
         self.cfg = cfg
-        # the supervisor (core/supervisor.py) is stepped on the object path only for now:
-        # with one, the run falls back from the fast path
+        if supervisor is None and cfg.supervisor.enabled:
+            supervisor = make_supervisor(cfg, mode, allow_unstable)
         self.supervisor = supervisor if trip else None
         self._feed = CheckpointFeed(cfg) if self.supervisor is not None else None
-        fast = False if self.supervisor is not None else fast
         n = cfg.plant.num_stages
         if plant is not None:
             check_plant(cfg, plant)
@@ -306,7 +314,10 @@ class Simulation:
         assert self.checker is not None
         self._feed.feed(ground, applied)
         before = self.supervisor.mode
-        self.supervisor.step(self._feed.checkpoint(self.k - 1, self.checker))
+        tr = self.supervisor.step(self._feed.checkpoint(self.k - 1, self.checker))
+        if tr is not None and tr.state in (State.TRIPPED, State.LATCHED) \
+                and self._exc_stop is None:
+            self._exc_stop = self.k  # an identification run ends at its first trip
         mode = self.supervisor.mode
         if mode is not before:
             self._targets(enabled_controllers(mode, self.cfg.plant.num_stages))
@@ -319,13 +330,24 @@ class Simulation:
         every = max(steps // 100, 1)
         ticks = set(range(1, steps + 1, every)) if progress is not None else set()
         k0 = self.k
+        # supervised: every segment ends at or before a checkpoint, where the supervisor's
+        # decision applies from the next sample as on the object path
+        check = self.checker.every if self._feed is not None and self.checker else steps + 1
         bounds = sorted({0, steps, *range(0, steps, fastsim.BLOCK), *ticks,
-                         *(e - k0 for e, _ in self.events if 0 < e - k0 < steps)})
+                         *(e - k0 for e, _ in self.events if 0 < e - k0 < steps),
+                         *range(-k0 % check, steps, check)})
         for b0, b1 in itertools.pairwise(bounds):
             self._apply_events()
             inputs = loop.draw(b1 - b0, self._excite_rows(self.k, b1 - b0))
-            if not self._segment(loop, inputs, _rows(out, b0, b1)):
+            rows = _rows(out, b0, b1)
+            if not self._segment(loop, inputs, rows):
                 return False
+            if self._feed is not None and self.checker is not None:
+                self._judge(rows[2], self.checker)
+                if self.k % check == 0:
+                    self._supervise(rows[2][:, 0], rows[4])
+                else:
+                    self._feed.feed(rows[2][:, 0], rows[4])
             if progress is not None and (b1 - 1) % every == 0:
                 progress((b1 - 1) / steps)
         loop.sync(self.k)
@@ -337,7 +359,7 @@ class Simulation:
         block is run again up to the tripping checkpoint, so it lands where the object path
         puts it."""
         m = inputs.ground.shape[0]
-        judge = self.checker is not None and self.trip is None
+        judge = self.checker is not None and self.trip is None and self._feed is None
         snap = loop.snapshot() if judge else None
         if loop.run(inputs, out) != m:
             return False

@@ -86,6 +86,35 @@ GLOBAL_SPECS: tuple[ParamSpec, ...] = (
        "[low, high]", 0.0, 1e4, length=2),
     _P("control.trip_window_s", "float", 0.2, "s", "Instability trip RMS window", 0.0, 60.0,
        lo_open=True),
+    _P("supervisor.enabled", "bool", True, "-", "Supervisor (docs/reliability.md): ride "
+       "through loud floors, re-engage after a trip; false: any trip latches Passive"),
+    _P("supervisor.ride_mode", "str", "fbc", "-", "Calmer mode while the floor is loud "
+       "(RIDE_THROUGH)", choices=("passive", "fbc", "ffc", "fbc_ffc", "dfbc", "dfbc_ffc")),
+    _P("supervisor.ride_ground_mps", "float", 2e-4, "m/s", "Ground band RMS (trip band and "
+       "window) above which the supervisor rides through", 0.0, 10.0, lo_open=True),
+    _P("supervisor.ride_force_ratio", "float", 0.8, "-", "Peak actuator force over its limit "
+       "above which the supervisor rides through", 0.0, 10.0, lo_open=True),
+    _P("supervisor.quiet_fraction", "float", 0.5, "-", "Quiet: ground, force and stage below "
+       "this fraction of their thresholds (hysteresis)", 0.0, 1.0, lo_open=True),
+    _P("supervisor.recover_after_s", "float", 5.0, "s", "Quiet time before the user's mode is "
+       "re-engaged after a ride-through", 0.0, 3600.0),
+    _P("supervisor.settle_s", "float", 1.0, "s", "Time RECOVERING lasts before ENGAGED "
+       "(fade plus one trip window)", 0.0, 3600.0),
+    _P("supervisor.excess_ratio", "float", 4.0, "-", "Stage band RMS over what the loop model "
+       "predicts for the measured ground above which a trip is an instability", 1.0, 1e6),
+    _P("supervisor.growth_per_s", "float", 2.0, "1/s", "Growth rate of stage over ground band "
+       "RMS above which a trip is an instability (modes without a model gain)", 0.0, 1e6,
+       lo_open=True),
+    _P("supervisor.floor_memory_s", "float", 2.0, "s", "A stage RMS is explained by the "
+       "loudest floor of this long ago (ring-down after a burst)", 0.05, 3600.0),
+    _P("supervisor.hold_s", "float", 2.0, "s", "Passive hold after the first trip before a "
+       "re-engagement", 0.0, 3600.0),
+    _P("supervisor.backoff", "float", 2.0, "-", "Hold multiplier per further attempt",
+       1.0, 100.0),
+    _P("supervisor.max_attempts", "int", 3, "-", "Automatic re-engagements before LATCHED "
+       "(only reset_trip clears it)", 0, 100),
+    _P("supervisor.attempts_window_s", "float", 120.0, "s", "A clean run this long forgives "
+       "the trips before it", 0.0, 1e6),
     _P("disturbance.seed", "int", 1, "-", "Seed of the white-noise disturbances", 0, 2**31 - 1),
     _P("disturbance.ground_rms_mps", "floats", [2e-6, 2e-6, 5e-6], "m/s", "RMS ground "
        "velocity along x, y, z (band-limited white noise)", 0.0, 1.0, length=3),

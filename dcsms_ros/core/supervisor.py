@@ -186,7 +186,7 @@ class Supervisor:
         self.user_mode = mode
         self.mode = mode
         self.state = State.ENGAGED
-        self.band_gain = dict(band_gain or {})
+        self.band_gain: Mapping[Mode, Array] = band_gain if band_gain is not None else {}
         self.stable = stable or (lambda m: True)
         self.since = 0.0  # time the current state began, s
         self.quiet_since: float | None = None
@@ -204,6 +204,17 @@ class Supervisor:
         is loud is what the supervisor protects against; the refusal says why and when.
         LATCHED accepts nothing: ``reset_trip`` first.
         """
+        refused = self.refusal(mode)
+        if refused is not None:
+            return refused
+        self.user_mode = mode
+        self._go(State.ENGAGED, mode, sample, t_s, f"user set {mode.label}")
+        self.hist.trips.clear()
+        return None
+
+    def refusal(self, mode: Mode) -> str | None:
+        """Why :meth:`request` would refuse ``mode`` now (None: it would accept); changes
+        nothing, so a node can ask before it switches its controllers."""
         if self.state is State.LATCHED:
             return f"supervisor LATCHED ({self.reason}); call reset_trip first"
         calm = mode in (Mode.PASSIVE, self.s.ride_mode)
@@ -211,9 +222,6 @@ class Supervisor:
             return (f"supervisor {self.state.value} ({self.reason}); {mode.label} is refused "
                     f"until the floor has been quiet for {self.s.recover_after_s:g} s "
                     f"(Passive or {self.s.ride_mode.label} are accepted)")
-        self.user_mode = mode
-        self._go(State.ENGAGED, mode, sample, t_s, f"user set {mode.label}")
-        self.hist.trips.clear()
         return None
 
     def reset(self, sample: int, t_s: float) -> None:
@@ -345,6 +353,11 @@ class CheckpointFeed:
     """Builds each :class:`Checkpoint` from the samples of a run: the ground velocity through
     the trip's own band-pass and window, the actuator forces' peak over the same window.
 
+    The forces of a checkpoint ending at sample k are those of samples k-W .. k-1 (W samples
+    per window): the graph's plant applies sample k's forces only once the checkpoint has been
+    judged (the verdict may disable controllers before they reach the plant), so the batch
+    engine lags them by one sample too (:meth:`feed`).
+
     Parameters
     ----------
     cfg : SystemConfig
@@ -358,16 +371,30 @@ class CheckpointFeed:
         self.window = max(1, int(round(cfg.control.trip_window_s / CHECK_PERIOD_S)))
         self.peaks: list[float] = []
         self.pending = 0.0
+        self._carry: Array | None = None  # feed(): the newest force row, for the next window
 
-    def feed(self, ground: Array, applied: Array) -> None:
-        """Samples since the last call: ground twist ``(K, dof)`` (m/s), forces
-        ``(K, n_actuators)`` (N)."""
+    def feed_ground(self, ground: Array) -> None:
+        """Ground twist rows ``(K, dof)`` (m/s) of the samples since the last call."""
         if ground.shape[0]:
             self.ground.update(ground)
+
+    def feed_force(self, applied: Array) -> None:
+        """Applied force rows ``(K, n_actuators)`` (N) that count in the next checkpoint."""
+        if applied.shape[0]:
             self.pending = max(self.pending, float(np.max(np.abs(applied) / self.limit)))
 
+    def feed(self, ground: Array, applied: Array) -> None:
+        """Rows of the same samples (the batch engine): ground twist ``(K, dof)`` (m/s), forces
+        ``(K, n_actuators)`` (N); the newest force row is held for the next checkpoint."""
+        self.feed_ground(ground)
+        if applied.shape[0]:
+            if self._carry is not None:
+                self.feed_force(self._carry)
+            self.feed_force(applied[:-1])
+            self._carry = applied[-1:].copy()
+
     def checkpoint(self, sample: int, checker: TripChecker) -> Checkpoint:
-        """The checkpoint ending at ``sample`` (after :meth:`feed` of its samples), with the
+        """The checkpoint ending at ``sample`` (after the rows through it were fed), with the
         stage band RMS of ``checker``."""
         self.peaks = [*self.peaks[-(self.window - 1):], self.pending] if self.window > 1 \
             else [self.pending]

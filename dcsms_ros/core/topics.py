@@ -86,6 +86,13 @@ class Names:
         return self._join("reset_trip")
 
     @property
+    def supervisor_state(self) -> str:
+        """std_msgs/String, transient local depth 1, published by mode_switch at every
+        supervisor transition: ``STATE MODE at T s: reason`` (T: plant time of the sample it
+        took effect after; :attr:`dcsms_ros.core.supervisor.Transition.label`)."""
+        return self._join("supervisor/state")
+
+    @property
     def trip_check(self) -> str:
         """std_msgs/Header, plant -> mode_switch (lockstep): judge the trip checkpoint that
         ends with the sample stamped ``stamp``."""
@@ -159,6 +166,7 @@ ACTUATORS_APPLIED = DEFAULT.actuators_applied
 MODE = DEFAULT.mode
 CONFIG = DEFAULT.config
 RESET_TRIP = DEFAULT.reset_trip
+SUPERVISOR_STATE = DEFAULT.supervisor_state
 
 
 def body_names(num_stages: int) -> tuple[str, ...]:

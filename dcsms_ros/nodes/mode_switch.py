@@ -38,18 +38,21 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import qos_profile_parameter_events
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 
-from dcsms_ros.cdr import TWIST_STAMPED, header_bytes, read_header, read_stamped
+from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, header_bytes, read_header, read_stamped
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import params_text
 from dcsms_ros.core.modes import ALL_MODES, Mode, controller_ids, enabled_controllers, parse_mode
+from dcsms_ros.core.supervision import LazyGains, make_supervisor, settings_from
+from dcsms_ros.core.supervisor import CheckpointFeed, State, Transition
 from dcsms_ros.core.trip import TripChecker
 from dcsms_ros.errors import ConfigError, ModeError
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import node_status, to_stamp
+from dcsms_ros.nodes.msgs import node_status, sample_ns, to_stamp
 from dcsms_ros.nodes.params import (
     MUTABLE_PREFIXES,
     SELECTORS,
@@ -60,6 +63,7 @@ from dcsms_ros.nodes.params import (
 from dcsms_ros.nodes.runtime import main_for
 from dcsms_ros.nodes.stability import StabilityGuard
 from dcsms_ros.nodes.switching import ControllerClients
+from dcsms_ros.protocols.superfeed import SupervisedFeed
 from dcsms_ros.protocols.tripfeed import TripFeed
 
 #: Reader depth of the trip monitor's velocity streams (samples).
@@ -120,6 +124,10 @@ class ModeSwitchNode(Node):
                             callback_group=services)
         self.feed = TripFeed(TripChecker(cfg.control, cfg.plant.rate_hz, n, cfg.plant.dof),
                              cfg.plant.rate_hz)
+        self.pub_state = self.create_publisher(String, topics.LOCAL.supervisor_state,
+                                               qos.latched())
+        self.sfeed = self._supervised(cfg) if self.trip_enabled else None
+        self._forces = JointStateReader("effort")
         self._hot = HotPath(self, self._lock)
         self._trip_subs: list[Any] = []
         self._asked = -1  # lockstep: the checkpoint stamp the plant waits for
@@ -132,6 +140,13 @@ class ModeSwitchNode(Node):
             tq.depth = TRIP_DEPTH
             self._trip_subs = [self._hot.detached(TwistStamped, topics.LOCAL.velocity(
                 f"stage{i + 1}"), tq, raw=True) for i in range(n)]
+            if self.sfeed is not None:
+                self._ground_sub = self._hot.detached(TwistStamped, topics.LOCAL.velocity(
+                    "ground"), tq, raw=True)
+                fq = qos.stream_pub(self.lockstep, durable=True)
+                fq.depth = TRIP_DEPTH
+                self._force_sub = self._hot.detached(JointState, topics.LOCAL.actuators_applied,
+                                                     fq, raw=True)
             if self.lockstep:
                 self.pub_checked = self.create_publisher(Header, topics.LOCAL.trip_checked,
                                                          qos.stream_pub(True))
@@ -147,12 +162,23 @@ class ModeSwitchNode(Node):
         self._publish_mode()
         self._publish_config()
         self.get_logger().info(f"mode {self.mode.label}; controllers {self.controllers}"
-                               f"{'; trip checkpoints' if self.pub_checked else ''}")
+                               f"{'; trip checkpoints' if self.pub_checked else ''}"
+                               f"{'; supervisor on' if self.sfeed else ''}")
+        self._publish_state(None)
         self._hot.start()
 
     # -- configuration -----------------------------------------------------------------------
     def _publish_config(self) -> None:
         self.pub_config.publish(String(data=params_text(self.guard.flat)))
+
+    def _supervised(self, cfg: Any) -> SupervisedFeed | None:
+        """The supervisor and its feed (None with ``supervisor.enabled`` false: a trip latches
+        Passive); its stability verdict is the guard's, on the live configuration."""
+        if not cfg.supervisor.enabled:
+            return None
+        sup = make_supervisor(cfg, self.mode, self.guard.allow)
+        sup.stable = lambda m: self.guard.refuse_mode(m) is None
+        return SupervisedFeed(self.feed, CheckpointFeed(cfg), sup)
 
     def _on_change(self, cfg: Any, changed: set[str]) -> None:
         self.guard.flat.update({k: self.params.flat[k] for k in changed})
@@ -161,6 +187,11 @@ class ModeSwitchNode(Node):
                 self.feed = TripFeed(TripChecker(cfg.control, cfg.plant.rate_hz,
                                                  cfg.plant.num_stages, cfg.plant.dof),
                                      cfg.plant.rate_hz)
+                if self.sfeed is not None:
+                    self.sfeed = SupervisedFeed(self.feed, CheckpointFeed(cfg), self.sfeed.sup)
+        if self.sfeed is not None and any(n.startswith(("supervisor.", "control.trip_rms"))
+                                          for n in changed):
+            self.sfeed.sup.s = settings_from(cfg)  # applies from the next checkpoint
         self._publish_config()
 
     def _on_param_event(self, msg: ParameterEvent) -> None:
@@ -174,6 +205,9 @@ class ModeSwitchNode(Node):
                for k, v in got.items()}
         if got and any(self.guard.flat.get(k) != v for k, v in got.items()):
             self.guard.flat.update(got)
+            cfg = self.guard.config()
+            if self.sfeed is not None and cfg is not None:
+                self.sfeed.sup.band_gain = LazyGains(cfg)  # what the floor explains, retuned
             self._publish_config()
 
     # -- switching ---------------------------------------------------------------------------
@@ -182,7 +216,11 @@ class ModeSwitchNode(Node):
         if not self._switch_lock.acquire(blocking=False):
             return False, "another mode switch is in progress"
         try:
-            if self.tripped and target is not Mode.PASSIVE:
+            if self.sfeed is not None:
+                refused = self.sfeed.sup.refusal(target)
+                if refused:
+                    return False, refused
+            elif self.tripped and target is not Mode.PASSIVE:
                 return False, (f"tripped ({self.trip_reason}); call {topics.LOCAL.reset_trip} "
                                f"before leaving Passive")
             lacking = sorted(enabled_controllers(target, self.num_stages) - set(self.controllers))
@@ -211,6 +249,13 @@ class ModeSwitchNode(Node):
                 self.get_logger().error(msg)
                 return False, msg
             self._set_mode(target)
+            if self.sfeed is not None:
+                with self._lock:
+                    self._drain()
+                    k = self.sfeed.newest_sample()
+                    self.sfeed.sup.request(target, k, k / self.params.cfg.plant.rate_hz)
+                    self.tripped = False
+                self._publish_state(self.sfeed.sup.transitions[-1])
             msg = f"mode {target.label}" + (": " + ", ".join(
                 f"{c} {'on' if c in want else 'off'}" for c in involved) if involved else "")
             self.get_logger().info(msg)
@@ -249,17 +294,74 @@ class ModeSwitchNode(Node):
     def _drain(self) -> None:
         for i, sub in enumerate(self._trip_subs):
             HotPath.drain(sub, partial(self._feed_trip, i))
+        if self.sfeed is not None and self._trip_subs:
+            HotPath.drain(self._ground_sub, self._feed_ground)
+            HotPath.drain(self._force_sub, self._feed_force)
+
+    def _feed_ground(self, buf: bytes) -> None:
+        assert self.sfeed is not None
+        self.sfeed.add_ground(*read_stamped(buf, TWIST_STAMPED, self.feed.checker.dof))
+
+    def _feed_force(self, buf: bytes) -> None:
+        assert self.sfeed is not None
+        stamp, _, f = self._forces.read(buf)
+        self.sfeed.add_force(stamp, f)
 
     def _feed_trip(self, i: int, buf: bytes) -> None:
         self.feed.add(i, *read_stamped(buf, TWIST_STAMPED, self.feed.checker.dof))
 
     def _judge_locked(self, through_ns: int | None = None) -> None:
+        if self.sfeed is not None:
+            with self._lock:
+                self._drain()
+                transitions = self.sfeed.step(through_ns)
+            if transitions:
+                self._supervise(transitions)
+            return
         with self._lock:
             self._drain()
             # judged on after a trip too: the reported RMS shows when the table has settled
             trip = self.feed.judge(through_ns)
         if trip is not None and not self.tripped:
             self._trip(trip.reason, self.feed.trip_ns)
+
+    def _supervise(self, transitions: list[Transition]) -> None:
+        """Carry out the supervisor's decisions: every transition is published and logged;
+        the controllers follow the last one's mode (lockstep: before the plant hears the
+        verdict, so the new mode runs from the next sample, as in the batch engine)."""
+        assert self.sfeed is not None
+        for tr in transitions:
+            log = (self.get_logger().error if tr.state in (State.TRIPPED, State.LATCHED)
+                   else self.get_logger().warning)
+            log(f"supervisor: {tr.label}")
+            self._publish_state(tr)
+        last = transitions[-1]
+        self.tripped = last.state in (State.TRIPPED, State.LATCHED)
+        self.trip_reason = last.reason if self.tripped else ""
+        if self.tripped:
+            self.trip_at = (time.monotonic_ns(), sample_ns(last.sample, self.feed.rate))
+        if last.mode is not self.mode:
+            with self._switch_lock:
+                want = enabled_controllers(last.mode, self.num_stages)
+                res = self.ctl.call_all({c: c in want for c in self.controllers},
+                                        self.switch_timeout_s, wait_for_service=False)
+                self._set_mode(last.mode)
+            bad = [c for c, r in res.items() if not r[0]]
+            if bad:
+                self.get_logger().error(f"supervisor: {last.mode.label}: could not switch "
+                                        f"{', '.join(bad)}")
+        self._report()
+
+    def _publish_state(self, tr: Transition | None) -> None:
+        """``supervisor/state``: the transition's label; at start ``ENGAGED`` (or ``OFF``
+        without a supervisor)."""
+        if tr is not None:
+            text = tr.label
+        elif self.sfeed is None:
+            text = f"OFF {self.mode.label} at 0.0000 s: supervisor disabled"
+        else:
+            text = f"ENGAGED {self.mode.label} at 0.0000 s: start"
+        self.pub_state.publish(String(data=text))
 
     def _on_check(self, buf: bytes) -> None:
         """Lockstep: the plant waits for the verdict on the checkpoint ending at ``stamp``."""
@@ -279,7 +381,9 @@ class ModeSwitchNode(Node):
         if self._asked < 0:
             return None
         self._drain()
-        if self.feed.complete_ns() < self._asked:
+        ready = (self.sfeed.complete(self._asked) if self.sfeed is not None
+                 else self.feed.complete_ns() >= self._asked)
+        if not ready:
             return 0.0002
         self._judge_locked(self._asked)
         self._answer(self._asked)
@@ -313,7 +417,12 @@ class ModeSwitchNode(Node):
             return response
         with self._lock:
             self._drain()  # what arrived before the reset belongs to the tripped past
-            self.feed.reset()
+            if self.sfeed is not None:
+                k = self.sfeed.newest_sample()
+                self.sfeed.sup.reset(k, k / self.params.cfg.plant.rate_hz)
+                self._publish_state(self.sfeed.sup.transitions[-1])
+            else:
+                self.feed.reset()
             old, self.tripped, self.trip_reason = self.trip_reason, False, ""
         response.success = True
         response.message = f"trip cleared (was: {old}); mode stays {self.mode.label}"
@@ -330,7 +439,8 @@ class ModeSwitchNode(Node):
             "mode": self.mode.label, "tripped": self.tripped, "trip_reason": self.trip_reason,
             "last_switch": self.last_result, "trip_mono_ns": self.trip_at[0],
             "trip_sample_ns": self.trip_at[1], "trip_gaps": self.feed.gaps,
-            "allow_unstable": self.guard.allow}
+            "allow_unstable": self.guard.allow,
+            "supervisor": self.sfeed.sup.state.value if self.sfeed is not None else "off"}
         values.update({f"rms_stage{i + 1}_mps": " ".join(f"{x:.3g}" for x in m.rms)
                        for i, m in enumerate(self.feed.checker.monitors)})
         values.update({c: "present" if r else "absent" for c, r in self.ctl.ready.items()})

@@ -65,7 +65,9 @@ class PlantIO:
         self.observed = declare_observed(node)
         self.pub_clock = node.create_publisher(ClockMsg, topics.CLOCK, qos.clock())
         self.pub_raw = node.create_publisher(JointState, names.sensors_raw, pub_qos)
-        self.pub_applied = node.create_publisher(JointState, names.actuators_applied, pub_qos)
+        # durable like the velocities: mode_switch's supervisor needs every sample from 0
+        self.pub_applied = node.create_publisher(JointState, names.actuators_applied,
+                                                 qos.stream_pub(node.lockstep, durable=True))
         self.pub_truth = [node.create_publisher(TwistStamped, names.truth(b), pub_qos)
                           for b in self.bodies] if opts.publish_truth else []
         self.pub_diag = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())

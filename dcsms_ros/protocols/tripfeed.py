@@ -68,14 +68,25 @@ class TripFeed:
         return min(self._newest)
 
     def judge(self, through_ns: int | None = None, lag_ns: int = 10_000_000) -> Trip | None:
-        """Give the checker every aligned row up to ``through_ns`` (lockstep: each stage must
-        have it) or, without it (real time), every row older than ``lag_ns`` before the newest
-        sample any stage has, a stage that lacks one counting zero there (a silent stream must
-        not blind the trip).
+        """Give the checker every aligned row of :meth:`take`.
 
         Returns the trip of a checkpoint among them (the rest of the rows are dropped then), or
         None.
         """
+        stamps, rows = self.take(through_ns, lag_ns)
+        if not rows:
+            return None
+        used, trip = self.checker.push(np.asarray(rows, dtype=np.float64))
+        if trip is not None:
+            self.trip_ns = stamps[used - 1]
+        return trip
+
+    def take(self, through_ns: int | None = None, lag_ns: int = 10_000_000
+             ) -> tuple[list[int], list[list[Array]]]:
+        """The aligned rows (stamps, one velocity per stage) up to ``through_ns`` (lockstep:
+        each stage must have it) or, without it (real time), every row older than ``lag_ns``
+        before the newest sample any stage has, a stage that lacks one counting zero there (a
+        silent stream must not blind the trip); they count as judged."""
         strict = through_ns is not None
         upto = (min(self.complete_ns(), through_ns) if through_ns is not None
                 else max(self._newest) - lag_ns)
@@ -104,12 +115,7 @@ class TripFeed:
             rows.append(row)
             stamps.append(s)
             self.judged_ns = s
-        if not rows:
-            return None
-        used, trip = self.checker.push(np.asarray(rows, dtype=np.float64))
-        if trip is not None:
-            self.trip_ns = stamps[used - 1]
-        return trip
+        return stamps, rows
 
     def reset(self) -> None:
         """Forget the history; feeding resumes at the next checkpoint block's first sample, so

@@ -30,14 +30,21 @@ CASES = {
     "sixdof_saturating": ("tem_three_point.yaml", {"actuators.force_limit_n": 0.01},
                           Mode.DFBC_FFC, SCHEDULE, 1.2),
     # fb_stage2 x50 is unstable: the trip latches Passive inside a fast block, which is rerun
-    "tripping": ("table1.yaml", {"feedback.stage2.gain": [0.0, 0.0, 2.25e6, 0.0, 0.0, 0.0]},
+    "tripping": ("table1.yaml", {"feedback.stage2.gain": [0.0, 0.0, 2.25e6, 0.0, 0.0, 0.0],
+                                 "supervisor.enabled": False},
                  Mode.PASSIVE, ((0.2, Mode.DFBC), (1.0, Mode.FBC)), 1.5),
+    # the same under the supervisor: it trips, holds Passive, re-engages DFBC (allowed), trips
+    # again, ...; its segments end at the checkpoints instead
+    "supervised": ("table1.yaml", {"feedback.stage2.gain": [0.0, 0.0, 2.25e6, 0.0, 0.0, 0.0],
+                                   "supervisor.hold_s": 0.3, "supervisor.settle_s": 0.1},
+                   Mode.PASSIVE, ((0.2, Mode.DFBC),), 4.0),
 }
 
 
 def _pair(name: str, **kw: object) -> tuple:
     file, over, mode, sched, dur = CASES[name]
     cfg = with_overrides(load_config(CONFIG / file), over)
+    kw.setdefault("allow_unstable", True)
     fast = simulate(cfg, mode, dur, seed=11, schedule=sched, fast=True, **kw)
     slow = simulate(cfg, mode, dur, seed=11, schedule=sched, fast=False, **kw)
     return fast, slow
@@ -60,6 +67,7 @@ def test_fast_matches_object_path(name):
     assert fast.counters == slow.counters
     assert fast.mode == slow.mode
     assert fast.trip == slow.trip and fast.refused == slow.refused
+    assert fast.supervision == slow.supervision
     assert fast.channel_names == slow.channel_names
     assert fast.actuator_names == slow.actuator_names
 

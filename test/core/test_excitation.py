@@ -166,7 +166,7 @@ def test_fast_path_bit_identical_with_excitation(table1, name):
 def test_trip_stops_the_excitation(table1, fast):
     """An excitation that trips the instability monitor stops on the sample the controllers go
     off; nothing is added while tripped."""
-    cfg = with_overrides(table1, {"control.trip_rms_mps": 2e-6})
+    cfg = with_overrides(table1, {"control.trip_rms_mps": 2e-6, "supervisor.enabled": False})
     exc = _excite(cfg, "stage1.z:white:20", 2.0)
     res = simulate(cfg, Mode.FBC, 2.0, seed=3, excite=exc, fast=fast)
     assert res.trip is not None
@@ -174,6 +174,14 @@ def test_trip_stops_the_excitation(table1, fast):
     np.testing.assert_array_equal(res.excitation[:stop], exc[:stop])
     assert not res.excitation[stop:].any()
     assert res.mode[-1] == (stop, "Passive")
+    # the supervisor trips on the same checkpoint (a quiet floor: an instability) and the
+    # excitation stops there too, for good, though the supervisor later re-engages FBC
+    sup = simulate(with_overrides(cfg, {"supervisor.enabled": True}), Mode.FBC, 2.0, seed=3,
+                   excite=exc, fast=fast)
+    first = sup.supervision[0]
+    assert first.state.value == "TRIPPED" and first.sample + 1 == stop
+    np.testing.assert_array_equal(sup.excitation[:stop], exc[:stop])
+    assert not sup.excitation[stop:].any()
 
 
 def _quiet(cfg):

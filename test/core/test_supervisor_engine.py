@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from dcsms_ros.core.check import unstable_reason
-from dcsms_ros.core.config import SystemConfig, load_config
+from dcsms_ros.core.config import SystemConfig, load_config, with_overrides
 from dcsms_ros.core.engine import Simulation, simulate
 from dcsms_ros.core.floor import floor_gain
 from dcsms_ros.core.modes import ALL_MODES, Mode
@@ -39,19 +39,22 @@ def test_burst_rides_through_and_dfbc_ffc_comes_back(cfg: SystemConfig) -> None:
     DFBC+FFC is back <= 20 s after the burst ends and stays; nothing trips or latches."""
     duration = 90.0
     ground = _burst_floor(cfg, duration)
-    plain = simulate(cfg, Mode.DFBC_FFC, duration, ground=ground)
+    plain = simulate(with_overrides(cfg, {"supervisor.enabled": False}), Mode.DFBC_FFC,
+                     duration, ground=ground)
     assert plain.trip is not None and 40.0 < plain.trip.sample * cfg.plant.dt < 42.0
-    sup = _supervisor(cfg, Mode.DFBC_FFC)
-    res = Simulation(cfg, Mode.DFBC_FFC, ground=ground, supervisor=sup).run(
-        int(duration * cfg.plant.rate_hz))
-    assert res is not None
-    states = [tr.state for tr in sup.transitions]
-    assert State.TRIPPED not in states and State.LATCHED not in states, sup.transitions
-    assert State.RIDE_THROUGH in states, sup.transitions
+    res = simulate(cfg, Mode.DFBC_FFC, duration, ground=ground)  # the preset's supervisor
+    states = [tr.state for tr in res.supervision]
+    assert State.TRIPPED not in states and State.LATCHED not in states, res.supervision
+    assert State.RIDE_THROUGH in states, res.supervision
     k_back, label = res.mode[-1]
     assert label == Mode.DFBC_FFC.label, res.mode
     assert k_back * cfg.plant.dt - 55.0 <= 20.0, res.mode
-    assert sup.state is State.ENGAGED
+    assert states[-1] is State.ENGAGED
+    # the explicit object path with the supervisor built by hand decides the same
+    sup = _supervisor(cfg, Mode.DFBC_FFC)
+    obj = Simulation(cfg, Mode.DFBC_FFC, ground=ground, supervisor=sup, fast=False).run(
+        int(duration * cfg.plant.rate_hz))
+    assert obj is not None and obj.supervision == res.supervision
 
 
 @pytest.mark.slow
@@ -59,10 +62,13 @@ def test_unstable_loop_is_retried_then_latched() -> None:
     """tem_unstable DFBC, allowed: TRIPPED, re-engaged at most 3 times, then LATCHED with the
     reason; Passive to the end."""
     cfg = load_config(UNSTABLE)
-    sup = _supervisor(cfg, Mode.DFBC, allow=True)
-    res = Simulation(cfg, Mode.DFBC, supervisor=sup).run(int(190.0 * cfg.plant.rate_hz))
-    assert res is not None
-    states = [tr.state for tr in sup.transitions]
-    assert states.count(State.RECOVERING) <= 3, sup.transitions
-    assert states[-1] is State.LATCHED and res.mode[-1][1] == Mode.PASSIVE.label, sup.transitions
-    assert "gave up" in sup.reason, sup.reason
+    res = simulate(cfg, Mode.DFBC, 190.0, allow_unstable=True)
+    states = [tr.state for tr in res.supervision]
+    assert states.count(State.RECOVERING) <= 3, res.supervision
+    assert states[-1] is State.LATCHED and res.mode[-1][1] == Mode.PASSIVE.label, \
+        res.supervision
+    assert "gave up" in res.supervision[-1].reason, res.supervision[-1]
+    # without allow_unstable the supervisor never re-engages the unstable mode: latched at once
+    once = simulate(cfg, Mode.DFBC, 150.0)
+    assert [tr.state for tr in once.supervision] == [State.TRIPPED, State.LATCHED], \
+        once.supervision

@@ -91,22 +91,27 @@ def _unstable(cfg: SystemConfig) -> SystemConfig:
     return with_overrides(cfg, {"feedback.stage2.gain": gain})
 
 
-@pytest.mark.parametrize("composed", [True, False], ids=["composed", "per-process"])
-def test_lockstep_trip_lands_on_the_batch_sample(composed: bool, domain: int, cfg: SystemConfig,
-                                                 tmp_path: Path) -> None:
+@pytest.mark.parametrize("composed, supervised", [(True, True), (False, True), (True, False)],
+                         ids=["composed", "per-process", "no-supervisor"])
+def test_lockstep_trip_lands_on_the_batch_sample(composed: bool, supervised: bool, domain: int,
+                                                 cfg: SystemConfig, tmp_path: Path) -> None:
     """DFBC with the stage-2 gain x50: the graph trips at the batch engine's checkpoint
-    (sample 99), latches Passive from sample 100 (the controllers fade out from there), and
-    every number equals simulate() bit for bit."""
+    (sample 99), goes Passive from sample 100 (the controllers fade out from there), and
+    every number equals simulate() bit for bit; the supervisor's transitions are recorded
+    with the batch engine's samples (``--no-supervisor``: the plain latch)."""
     bad = _unstable(cfg)
     gain = "[" + ",".join(repr(x) for x in bad.params["feedback.stage2.gain"]) + "]"
     out = tmp_path / "bag"
     # --allow-unstable: the initial mode passes the stability guard, and this one must trip
     _sim(["--engine", "graph", "--mode", "dfbc", "--duration", "0.3", "--out", str(out),
           "--set", f"feedback.stage2.gain={gain}", "--allow-unstable",
-          *(["--composed"] if composed else [])],
+          *(["--composed"] if composed else []), *([] if supervised else ["--no-supervisor"])],
          tmp_path / "sim.log")
-    ref = simulate(bad, Mode.DFBC, 0.3)
-    assert ref.trip is not None and ref.trip.sample == 99
+    if not supervised:
+        bad = with_overrides(bad, {"supervisor.enabled": False})
+    ref = simulate(bad, Mode.DFBC, 0.3, allow_unstable=True)
+    first = ref.supervision[0].sample if supervised else (ref.trip.sample if ref.trip else -1)
+    assert first == 99
     assert ref.mode == [(0, "DFBC"), (100, "Passive")]
     got = _read(out)
     for c in controller_ids(cfg.plant.num_stages):
@@ -116,3 +121,10 @@ def test_lockstep_trip_lands_on_the_batch_sample(composed: bool, domain: int, cf
     _, applied = _series(got[topics.ACTUATORS_APPLIED], cdr.JOINT_STATE)
     np.testing.assert_array_equal(applied, ref.applied)
     assert _modes(got[topics.MODE]) == ["DFBC", "Passive"]
+    states = _modes(got[topics.SUPERVISOR_STATE])
+    if supervised:
+        assert states == ["ENGAGED DFBC at 0.0000 s: start",
+                          *(tr.label for tr in ref.supervision)], states
+        assert states[1].startswith("TRIPPED Passive at 0.0495 s: ")
+    else:
+        assert states == ["OFF DFBC at 0.0000 s: supervisor disabled"]
