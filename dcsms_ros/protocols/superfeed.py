@@ -67,7 +67,7 @@ class SupervisedFeed:
 
     def newest_sample(self) -> int:
         """Index of the newest sample any stage stream has (-1: none)."""
-        newest = max(self.feed._newest)
+        newest = self.feed.newest_ns()
         return self.feed.index(newest) if newest >= 0 else -1
 
     def step(self, through_ns: int | None = None) -> list[Transition]:

@@ -63,6 +63,10 @@ class TripFeed:
         self._newest[stage] = stamp_ns
         self._queues[stage].append((stamp_ns, v))
 
+    def newest_ns(self) -> int:
+        """Newest stamp any stage has arrived at (-1: none)."""
+        return max(self._newest)
+
     def complete_ns(self) -> int:
         """Newest stamp every stage has arrived at (-1 while one has nothing)."""
         return min(self._newest)
