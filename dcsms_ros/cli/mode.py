@@ -3,7 +3,9 @@
 ``NAME`` is any spelling :func:`~dcsms_ros.core.modes.parse_mode` accepts (``DFBC+FFC``,
 ``dfbc_ffc``, ``fbc-ffc`` ...); an unknown name exits with status 2 and lists the valid ones.
 The switch is the ``/dcsms/set_mode/<mode>`` service of the ``mode_switch`` node; its answer is
-printed. Exit status: 0 switched (or shown), 1 refused, rolled back or no graph answering.
+printed. Without NAME the current mode is printed, and the supervisor's state on a second line
+(``supervisor: STATE MODE at T s: reason``). Exit status: 0 switched (or shown), 1 refused,
+rolled back or no graph answering.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from functools import partial
 from typing import Any
 
 from dcsms_ros.core import topics
@@ -31,6 +34,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--timeout", type=float, default=5.0, metavar="S",
                    help="seconds to wait for the graph to answer (default 5)")
     p.set_defaults(func=run)
+
+
+def _keep(into: list[str], msg: Any) -> None:
+    into.append(msg.data)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,16 +84,17 @@ def run(args: argparse.Namespace) -> int:
                     return 1
             if not calls:
                 got: list[str] = []
-
-                def on_mode(msg: Any) -> None:
-                    got.append(msg.data)
-
-                node.create_subscription(String, topics.MODE, on_mode, qos.latched())
+                state: list[str] = []
+                for topic, into in ((topics.MODE, got), (topics.SUPERVISOR_STATE, state)):
+                    node.create_subscription(String, topic, partial(_keep, into), qos.latched())
                 if not spin_until(executor, lambda: bool(got), timeout_s=args.timeout):
                     print(f"dcsms: error: no mode on {topics.MODE} within {args.timeout:g} s; "
                           f"is `dcsms up` running?", file=sys.stderr)
                     return 1
                 print(got[-1])
+                # both are latched by the same node: the state follows the mode at once
+                if spin_until(executor, lambda: bool(state), timeout_s=min(args.timeout, 1.0)):
+                    print(f"supervisor: {state[-1]}")
             return 0
         finally:
             executor.shutdown(timeout_sec=1.0)

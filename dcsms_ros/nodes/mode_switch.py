@@ -9,7 +9,12 @@ mode the model of the running configuration calls unstable is refused with the p
 (:mod:`.stability`; ``allow_unstable`` lets it through). The mode label is on ``mode``
 (transient local, depth 1).
 
-Trip (:class:`~dcsms_ros.core.trip.TripChecker` fed by
+Supervisor (``supervisor.enabled``, the default; :mod:`dcsms_ros.core.supervisor`, fed by
+:class:`~dcsms_ros.protocols.superfeed.SupervisedFeed` from the stage and ground velocities
+and the applied forces): at every checkpoint it may ride through in a calmer mode, re-engage
+the user's mode, trip to Passive or latch; each transition switches the controllers, is logged
+and published on ``supervisor/state`` (transient local); a user's switch it refuses is refused
+with its reason. Without it (trip only, :class:`~dcsms_ros.core.trip.TripChecker` fed by
 :class:`~dcsms_ros.protocols.tripfeed.TripFeed`): the stage velocities are judged at every
 checkpoint; a trip disables every controller, latches Passive, logs why and reports it on
 ``/diagnostics``; only ``reset_trip`` clears the latch (the mode stays Passive). Lockstep: the
@@ -431,16 +436,20 @@ class ModeSwitchNode(Node):
 
     def _report(self) -> None:
         missing = [c for c in self.controllers if self._want(c) and not self.ctl.ready[c]]
+        sup = self.sfeed.sup if self.sfeed is not None else None
+        riding = sup is not None and sup.state in (State.RIDE_THROUGH, State.RECOVERING)
         level = (DiagnosticStatus.ERROR if self.tripped else
-                 DiagnosticStatus.WARN if missing else DiagnosticStatus.OK)
+                 DiagnosticStatus.WARN if missing or riding else DiagnosticStatus.OK)
         msg = (f"TRIPPED: {self.trip_reason}" if self.tripped else
-               f"degraded: {', '.join(missing)} absent" if missing else self.mode.label)
+               f"degraded: {', '.join(missing)} absent" if missing else
+               f"{sup.state.value} {self.mode.label}: {sup.reason}" if riding and sup else
+               self.mode.label)
         values: dict[str, object] = {
             "mode": self.mode.label, "tripped": self.tripped, "trip_reason": self.trip_reason,
             "last_switch": self.last_result, "trip_mono_ns": self.trip_at[0],
             "trip_sample_ns": self.trip_at[1], "trip_gaps": self.feed.gaps,
             "allow_unstable": self.guard.allow,
-            "supervisor": self.sfeed.sup.state.value if self.sfeed is not None else "off"}
+            "supervisor": sup.state.value if sup is not None else "off"}
         values.update({f"rms_stage{i + 1}_mps": " ".join(f"{x:.3g}" for x in m.rms)
                        for i, m in enumerate(self.feed.checker.monitors)})
         values.update({c: "present" if r else "absent" for c, r in self.ctl.ready.items()})

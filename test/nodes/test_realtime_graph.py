@@ -45,7 +45,10 @@ def test_realtime_graph_switches_mode_and_stops_cleanly(ctx, tmp_path):
         now = subprocess.run([*DCSMS, "mode", "--timeout", "20"], capture_output=True, text=True,
                              check=False,
                              timeout=60)
-        assert now.stdout.strip() == "DFBC+FFC", now.stdout + now.stderr
+        lines = now.stdout.splitlines()
+        assert lines[0] == "DFBC+FFC", now.stdout + now.stderr
+        # the supervisor's state: the user's switch engaged DFBC+FFC
+        assert lines[1].startswith("supervisor: ENGAGED DFBC+FFC at "), now.stdout
         t_end = time.monotonic() + 3.0
         while time.monotonic() < t_end:
             ex.spin_once(timeout_sec=0.1)
