@@ -9,8 +9,11 @@ import pytest
 from rosbags.rosbag2 import Reader
 
 from dcsms_ros import cdr
+from dcsms_ros.analysis.export import write_result_bag
 from dcsms_ros.cli import main
 from dcsms_ros.cli.sim import parse_schedule
+from dcsms_ros.core.config import load_config
+from dcsms_ros.core.engine import simulate
 from dcsms_ros.core.modes import Mode
 
 
@@ -124,3 +127,26 @@ def test_parse_schedule() -> None:
     """T:MODE items in any order, any mode spelling."""
     assert parse_schedule("20:DFBC+FFC, 5:fbc") == [(5.0, Mode.FBC), (20.0, Mode.DFBC_FFC)]
     assert parse_schedule("") == []
+
+
+def test_sim_prints_the_supervisors_transitions_and_no_supervisor_latches(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A floor bag with a burst (x300 from 0.5 to 1.2 s): the supervisor rides through in FBC
+    and comes back to DFBC+FFC, each transition printed; ``--no-supervisor`` rides nothing
+    and, the burst being below the trip, stays in DFBC+FFC without a transition."""
+    cfg = load_config(Path(__file__).resolve().parents[2] / "config" / "table1.yaml")
+    ground = simulate(cfg, Mode.PASSIVE, 4.0, seed=5, trip=False).truth[:, 0].copy()
+    ground[1000:2400] *= 300.0
+    floor = tmp_path / "floor"
+    write_result_bag(simulate(cfg, Mode.PASSIVE, 4.0, ground=ground, trip=False), floor)
+    quick = ["--set", "supervisor.recover_after_s=0.5", "--set", "supervisor.settle_s=0.3"]
+    assert main(["sim", "--mode", "dfbc_ffc", "--duration", "3.5", "--ground-from", str(floor),
+                 "--out", str(tmp_path / "on"), *quick]) == 0
+    err = capsys.readouterr().err
+    lines = [x for x in err.splitlines() if x.startswith("dcsms: supervisor: ")]
+    assert [x.split()[2:4] for x in lines] == [["RIDE_THROUGH", "FBC"],
+                                               ["RECOVERING", "DFBC+FFC"],
+                                               ["ENGAGED", "DFBC+FFC"]], err
+    assert main(["sim", "--mode", "dfbc_ffc", "--duration", "3.5", "--ground-from", str(floor),
+                 "--out", str(tmp_path / "off"), "--no-supervisor", *quick]) == 0
+    assert "dcsms: supervisor:" not in capsys.readouterr().err
