@@ -34,10 +34,13 @@ def _call(probe: Probe, srv_type, name: str, request, timeout: float = 20.0):
 # once; two reruns keep CI meaningful (every attempt must fail for a red run).
 @pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_unstable_gain_trips_to_passive_and_latches(ctx, cfg, tmp_path):
-    """fb_stage2 gain x50 via set_parameters: Passive within 1 s, reason given, latched."""
+    """fb_stage2 gain x50 via set_parameters: Passive within 1 s, reason given, latched
+    (without the supervisor, ``supervisor.enabled`` false: the supervisor would re-engage
+    after its hold; test/nodes/test_supervisor_graph.py covers it)."""
     probe = Probe(ctx)
     # the stability guard would refuse the gain; the trip is the last line of defence
-    graph = Graph(cfg, tmp_path, mode=Mode.DFBC, allow_unstable=True)
+    graph = Graph(cfg, tmp_path, mode=Mode.DFBC, allow_unstable=True,
+                  extra={"mode_switch": {"supervisor.enabled": False}})
     name = "feedback.stage2.gain"
     gain = [FACTOR * g for g in cfg.params[name]]
     try:
