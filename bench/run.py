@@ -71,6 +71,12 @@ def _graph(smoke: bool, tmp: Path, rt_seconds: float | None = None) -> list[Row]
     return list(graph_bench.run(smoke, tmp, rt_seconds))
 
 
+def _supervisor(smoke: bool, tmp: Path) -> list[Row]:
+    import supervisor_bench
+
+    return supervisor_bench.run(smoke)
+
+
 def _stream(smoke: bool, tmp: Path) -> list[Row]:
     import stream_bench
 
@@ -80,6 +86,7 @@ def _stream(smoke: bool, tmp: Path) -> list[Row]:
 #: name -> benchmark; run in this order.
 REGISTRY: dict[str, Callable[[bool, Path], list[Row]]] = {
     "engine": _engine, "bags": _bags, "stream": _stream, "pingpong": _pingpong,
+    "supervisor": _supervisor,
     "graph": _graph,
 }
 

@@ -45,7 +45,7 @@ class SupervisedFeed:
         self._newest_ground = -1
         self._newest_force = -1
         self._pending: list[list[Array]] = []  # stage rows of the open checkpoint block
-        self._zero_force: Array | None = None
+        self._pending_ground: list[Array] = []  # its ground rows
 
     def add_ground(self, stamp_ns: int, v: Array) -> None:
         """Ground twist ``v`` (dof,) m/s of the sample stamped ``stamp_ns``."""
@@ -78,12 +78,14 @@ class SupervisedFeed:
         every = self.feed.checker.every
         for s, row in zip(stamps, rows, strict=True):
             self._pending.append(row)
-            self.cp.feed_ground(self._take_ground(s)[None, :])
+            self._pending_ground.append(self._take_ground(s))
             k = self.feed.index(s)
             if (k + 1) % every:
                 continue
+            # one filter call per checkpoint block (the same numbers as row by row)
             self.feed.checker.push(np.asarray(self._pending, dtype=np.float64))
-            self._pending = []
+            self.cp.feed_ground(np.asarray(self._pending_ground, dtype=np.float64))
+            self._pending, self._pending_ground = [], []
             self._feed_forces_before(s)
             tr = self.sup.step(self.cp.checkpoint(k, self.feed.checker))
             if tr is not None:
@@ -108,7 +110,7 @@ class SupervisedFeed:
     def reset(self) -> None:
         """After ``reset_trip``: the trip feed realigns to the next checkpoint block."""
         self.feed.reset()
-        self._pending = []
+        self._pending, self._pending_ground = [], []
 
 
 __all__ = ["SupervisedFeed"]
