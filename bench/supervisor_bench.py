@@ -32,8 +32,13 @@ def _burst(seconds: float) -> tuple[Any, Any]:
 
 def _node_cost(cfg: Any, res: Any, supervised: bool) -> tuple[float, int]:
     """Seconds per sample of mode_switch's lockstep work; transitions seen."""
-    from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, JointStateWriter, StampedWriter
-    from dcsms_ros.cdr import read_stamped
+    from dcsms_ros.cdr import (
+        TWIST_STAMPED,
+        JointStateReader,
+        JointStateWriter,
+        StampedWriter,
+        read_stamped,
+    )
     from dcsms_ros.core.modes import Mode
     from dcsms_ros.core.supervision import make_supervisor
     from dcsms_ros.core.supervisor import CheckpointFeed
