@@ -336,9 +336,11 @@ class ModeSwitchNode(Node):
         verdict, so the new mode runs from the next sample, as in the batch engine)."""
         assert self.sfeed is not None
         for tr in transitions:
-            log = (self.get_logger().error if tr.state in (State.TRIPPED, State.LATCHED)
-                   else self.get_logger().warning)
-            log(f"supervisor: {tr.label}")
+            # rclpy: one call site, one severity (it raises otherwise)
+            if tr.state in (State.TRIPPED, State.LATCHED):
+                self.get_logger().error(f"supervisor: {tr.label}")
+            else:
+                self.get_logger().warning(f"supervisor: {tr.label}")
             self._publish_state(tr)
         last = transitions[-1]
         self.tripped = last.state in (State.TRIPPED, State.LATCHED)

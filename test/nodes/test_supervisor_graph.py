@@ -6,6 +6,7 @@ for bit. A user's switch to a more active mode during RIDE_THROUGH is refused wi
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -108,3 +109,30 @@ def test_realtime_graph_rides_through_the_burst(domain: int, cfg: SystemConfig,
     t_ride = float(labels[1].split()[3])
     assert 0.5 <= t_ride <= 0.7, labels  # the burst starts at 0.5 s
     assert [cdr.decode_string(m) for m in got[topics.MODE]] == ["DFBC+FFC", "FBC", "DFBC+FFC"]
+
+
+@pytest.mark.slow
+def test_graph_gives_up_on_an_unstable_loop_like_the_batch_engine(domain: int,
+                                                                   cfg: SystemConfig,
+                                                                   tmp_path: Path) -> None:
+    """Table1 DFBC with the stage-2 gain x50, started with --allow-unstable: tripped,
+    re-engaged 3 times, then LATCHED with the reason logged; every transition on the batch
+    engine's sample."""
+    gain = [50.0 * g for g in cfg.params["feedback.stage2.gain"]]
+    over = {"feedback.stage2.gain": gain, "supervisor.hold_s": 0.2, "supervisor.settle_s": 0.2}
+    sets = ["--set", "feedback.stage2.gain=[" + ",".join(repr(x) for x in gain) + "]",
+            "--set", "supervisor.hold_s=0.2", "--set", "supervisor.settle_s=0.2"]
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "dcsms_ros.cli", "sim", "--engine", "graph", "--composed",
+           "--mode", "dfbc", "--duration", "16", "--allow-unstable", "--out", str(out), *sets]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    ref = simulate(with_overrides(cfg, over), Mode.DFBC, 16.0, allow_unstable=True)
+    states = [tr.state for tr in ref.supervision]
+    assert states.count(State.RECOVERING) == 3 and states[-1] is State.LATCHED, ref.supervision
+    assert "gave up" in ref.supervision[-1].reason
+    labels = [cdr.decode_string(m) for m in _read(out)[topics.SUPERVISOR_STATE]]
+    assert labels == ["ENGAGED DFBC at 0.0000 s: start", *(tr.label for tr in ref.supervision)]
+    logs = Path(re.search(r"logs in (\S+)", run.stdout).group(1))  # type: ignore[union-attr]
+    log = "\n".join(p.read_text() for p in logs.glob("*.log"))
+    assert f"supervisor: {ref.supervision[-1].label}" in log
