@@ -199,10 +199,11 @@ class Supervisor:
         """A user's ``set_mode``: None if accepted (the mode runs from ``sample + 1``), else
         the reason it is refused.
 
-        Accepted in ENGAGED and RECOVERING. During RIDE_THROUGH and TRIPPED only Passive or
-        the ride mode (calmer, never worse) are accepted: a more active mode while the floor
-        is loud is what the supervisor protects against; the refusal says why and when.
-        LATCHED accepts nothing: ``reset_trip`` first.
+        Accepted in ENGAGED and RECOVERING. During RIDE_THROUGH only Passive or the ride mode
+        (calmer, never worse) are accepted: a more active mode while the floor is loud is what
+        the supervisor protects against; the refusal says why and when. During TRIPPED only
+        Passive (after an instability the ride mode may be what grew). LATCHED accepts
+        nothing: ``reset_trip`` first.
         """
         refused = self.refusal(mode)
         if refused is not None:
@@ -217,9 +218,12 @@ class Supervisor:
         nothing, so a node can ask before it switches its controllers."""
         if self.state is State.LATCHED:
             return f"supervisor LATCHED ({self.reason}); call reset_trip first"
-        calm = mode in (Mode.PASSIVE, self.s.ride_mode)
-        if self.state in (State.RIDE_THROUGH, State.TRIPPED) and not calm:
-            return (f"supervisor {self.state.value} ({self.reason}); {mode.label} is refused "
+        if self.state is State.TRIPPED and mode is not Mode.PASSIVE:
+            # after an instability even the ride mode may be what grew: only Passive
+            return (f"supervisor TRIPPED ({self.reason}); {mode.label} is refused until the "
+                    f"supervisor re-engages or reset_trip (Passive is accepted)")
+        if self.state is State.RIDE_THROUGH and mode not in (Mode.PASSIVE, self.s.ride_mode):
+            return (f"supervisor RIDE_THROUGH ({self.reason}); {mode.label} is refused "
                     f"until the floor has been quiet for {self.s.recover_after_s:g} s "
                     f"(Passive or {self.s.ride_mode.label} are accepted)")
         return None
@@ -240,9 +244,11 @@ class Supervisor:
         del self.hist.log_rel[:-(self.s.growth_span + 1)]
         self.hist.ground.append(float(np.max(cp.ground_rms)))
         del self.hist.ground[:-max(1, int(round(self.s.floor_memory_s / CHECK_PERIOD_S)))]
-        if self.state is State.LATCHED or (self.state is State.ENGAGED
-                                            and self.mode is Mode.PASSIVE):
+        if self.state is State.LATCHED:
             return None
+        # the user's Passive: nothing to ride through, but a motion the floor does not explain
+        # (an excitation, a fault) still trips, which stops an excitation as the trip did
+        passive = self.state is State.ENGAGED and self.mode is Mode.PASSIVE
         loud = self._loud(cp)
         if stage > self.s.trip_rms_mps and self.state is not State.TRIPPED:
             why = self._instability(cp, stage)
@@ -250,6 +256,8 @@ class Supervisor:
                 return self._trip(cp, why or f"stage band RMS {stage:.3g} m/s above "
                                   f"{self.s.trip_rms_mps:g} m/s")
             loud = loud or f"stage band RMS {stage:.3g} m/s explained by the floor"
+        if passive:
+            return None
         quiet = self._quiet(cp, stage)
         self.quiet_since = (self.quiet_since if self.quiet_since is not None else cp.t_s) \
             if quiet else None

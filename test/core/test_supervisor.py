@@ -127,3 +127,25 @@ def test_disabled_latches_on_the_first_trip() -> None:
     run = drive(sup, 60.0)
     assert [tr.state for tr in sup.transitions] == [State.LATCHED]
     assert run[-1][1] is Mode.PASSIVE
+
+
+def test_passive_is_never_ridden_through_but_an_unexplained_motion_trips() -> None:
+    """The user's Passive: a burst changes nothing (no calmer mode to ride in); a stage motion
+    above the trip on a quiet floor (an excitation, a fault) trips, as the plain trip did, and
+    Passive is re-engaged after the hold."""
+    # the model's gains explain the stage in the burst (without them the lag of the stage
+    # behind the floor at the burst's onset looks like growth)
+    gain = {m: np.full((2, 3), g) for m, g in GAIN.items()}
+    sup = Supervisor(SupervisorSettings(), Mode.PASSIVE, band_gain=gain)
+    drive(sup, 80.0)
+    assert sup.transitions == [] and sup.state is State.ENGAGED
+    shaken = Supervisor(SupervisorSettings(), Mode.PASSIVE)
+    cp = Checkpoint(0, 0.05, np.full((2, 3), 2e-3), np.full(3, FLOOR), 0.1)
+    tr = shaken.step(cp)
+    assert tr is not None and tr.state is State.TRIPPED and tr.mode is Mode.PASSIVE
+    assert "quiet floor" in tr.reason
+    calm = [Checkpoint(j, 0.05 * j, np.full((2, 3), FLOOR), np.full(3, FLOOR), 0.1)
+            for j in range(2, 200)]
+    got = [t for c in calm if (t := shaken.step(c)) is not None]
+    assert [t.state for t in got] == [State.RECOVERING, State.ENGAGED]
+    assert all(t.mode is Mode.PASSIVE for t in got)

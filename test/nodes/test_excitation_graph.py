@@ -126,7 +126,7 @@ def test_realtime_excitation_service_sum_and_trip(ctx, tmp_path: Path) -> None:
         assert spin_until(ex, lambda: np.count_nonzero(exc) > 1000, 60.0), state
         on = np.asarray(applied[n_on:])
         # Passive: the stage-1 actuator applies the excitation alone (5 N RMS)
-        assert np.std(on[on != 0]) == pytest.approx(5.0, rel=0.3)
+        assert np.std(on[on != 0]) == pytest.approx(5.0, rel=0.3), (len(applied), n_on)
         _set_trip(ex, params, 3e-5)  # ambient ~8e-6 m/s, excited ~1e-4 m/s
         assert spin_until(ex, lambda: state.get("mode_switch", {}).get("tripped") == "True",
                           30.0), state.get("mode_switch")

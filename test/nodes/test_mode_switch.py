@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
@@ -81,9 +82,14 @@ def test_switch_and_rollback_when_a_controller_is_absent(ctx, cfg):
         g.close()
 
 
-def test_instability_trip_latches_passive_until_reset(ctx, cfg):
-    """A large in-band oscillation on stage 1 trips to Passive, blocks switching until reset."""
-    g = Graph(ctx, cfg, initial_mode="fbc", **{"control.trip_rms_mps": 1e-4})
+@pytest.mark.parametrize("supervised", [False, True], ids=["latch", "supervisor"])
+def test_instability_trip_latches_passive_until_reset(ctx, cfg, supervised):
+    """A large in-band oscillation on stage 1 trips to Passive, blocks switching until reset.
+    Without the supervisor the trip latches; with it (no floor published: a quiet floor) it is
+    an instability, TRIPPED, and a switch is refused until the floor has been quiet, or until
+    reset_trip."""
+    g = Graph(ctx, cfg, initial_mode="fbc", **{"control.trip_rms_mps": 1e-4,
+                                                "supervisor.enabled": supervised})
     try:
         pub = g.client.create_publisher(TwistStamped, topics.velocity_topic("stage1"),
                                         qos.stream_pub(False))
@@ -99,10 +105,11 @@ def test_instability_trip_latches_passive_until_reset(ctx, cfg):
         assert g.wait(lambda: g.ms.tripped, 5.0)
         print(f"\ntrip latched {time.monotonic() - t0:.2f} s after the oscillation started: "
               f"{g.ms.trip_reason}")
-        assert "stage1 velocity RMS" in g.ms.trip_reason
+        assert ("on a quiet floor" if supervised else "stage1 velocity RMS") in g.ms.trip_reason
         assert g.wait(lambda: g.modes[-1] == "Passive") and not g.fb[0].loop.enabled
         r = g.call(topics.set_mode_service("fbc"))
-        assert not r.success and "reset_trip" in r.message
+        assert not r.success
+        assert ("supervisor TRIPPED" if supervised else "reset_trip") in r.message, r.message
         time.sleep(1.0)  # let the monitor take every sample still queued (they would re-trip)
         r = g.call(topics.RESET_TRIP)
         assert r.success and "trip cleared" in r.message
