@@ -76,6 +76,13 @@ class Names:
         return self._join("mode")
 
     @property
+    def supervisor_state(self) -> str:
+        """std_msgs/String, transient local: every supervisor transition, its text
+        :attr:`~dcsms_ros.core.supervisor.Transition.label` (``STATE MODE at T s: reason``, T the
+        plant time of the transition's sample in s: a String has no header stamp)."""
+        return self._join("supervisor/state")
+
+    @property
     def config(self) -> str:
         """std_msgs/String, transient local depth 1: the configuration as a params file."""
         return self._join("config")
@@ -157,6 +164,7 @@ EXCITATION = DEFAULT.force(EXCITATION_ID)
 SENSORS_RAW = DEFAULT.sensors_raw
 ACTUATORS_APPLIED = DEFAULT.actuators_applied
 MODE = DEFAULT.mode
+SUPERVISOR_STATE = DEFAULT.supervisor_state
 CONFIG = DEFAULT.config
 RESET_TRIP = DEFAULT.reset_trip
 
