@@ -6,7 +6,8 @@ writer thread encodes each block's topics as byte matrices (the fixed CDR layout
 goes through :mod:`.bagio`), while the main thread simulates the next block (the compiled loop
 releases the GIL). At most two blocks are alive at once, so memory stays bounded whatever the
 duration. The bag holds the topics :func:`.export.export_result` writes, in the same order and
-with the same bytes.
+with the same bytes (``/dcsms/supervisor/state`` too: its topic is added at the first
+transition, as the one-shot export has it only when there is one).
 
 :func:`check_run` refuses, before anything is written, a run whose bag would not fit on the disk
 (estimated from the message layouts and the compression measured on the graph's streams) or
@@ -39,6 +40,7 @@ from dcsms_ros.core.excitation import Excitation, ExcitationSpec
 from dcsms_ros.core.model import actuator_count
 from dcsms_ros.core.modes import ControllerId, Mode, controller_ids
 from dcsms_ros.core.sensors import channel_layout
+from dcsms_ros.core.supervisor import Supervisor, Transition
 from dcsms_ros.errors import DcsmsError
 
 #: Simulated seconds per block.
@@ -71,6 +73,7 @@ class StreamResult:
     trip: Any = None
     refused: list[tuple[int, str]] = field(default_factory=list)
     restarted: bool = False
+    supervision: list[Transition] = field(default_factory=list)
 
 
 def layouts(cfg: SystemConfig, channel_names: Sequence[str], actuator_names: Sequence[str],
@@ -162,6 +165,7 @@ class _Writer:
         self._tpl: RowTemplate | None = None
         self._modes: list[tuple[int, str]] = []  # mode changes not written yet (a trip's
         # Passive may fall on the next block's first sample)
+        self._states: list[Transition] = []  # supervisor transitions not written yet
         self.queue: queue.Queue[Any] = queue.Queue(maxsize=1)
         self.error: BaseException | None = None
         self.counts: dict[str, int] = {}
@@ -236,11 +240,20 @@ class _Writer:
         self._modes += res.mode
         now = [(k - k0, lab) for k, lab in self._modes if k < end]
         self._modes = [(k, lab) for k, lab in self._modes if k >= end]
-        cuts = sorted({k for k, _ in now} | {0})
+        self._states += res.supervision
+        states = [tr for tr in self._states if tr.sample < end]
+        self._states = [tr for tr in self._states if tr.sample >= end]
+        if states and topics.SUPERVISOR_STATE not in self.bag.counts:
+            self.bag.add_topic(topics.SUPERVISOR_STATE, cdr.STRING, LATCHED_QOS)
+        cuts = sorted({k for k, _ in now} | {tr.sample - k0 for tr in states} | {0})
         labels = dict(now)
         for a, b in zip(cuts, [*cuts[1:], t_ns.size], strict=True):
             if a in labels:
                 self.bag.write(topics.MODE, int(t_ns[a]), cdr.encode_string(labels[a]))
+            for tr in states:
+                if tr.sample - k0 == a:
+                    self.bag.write(topics.SUPERVISOR_STATE, int(t_ns[a]),
+                                   cdr.encode_string(tr.label))
             self._rows(t_ns[a:b], names, [r[a:b] for r in rows])
 
     def _rows(self, t: NDArray[np.int64], names: list[str], rows: list[NDArray[np.uint8]]) -> None:
@@ -273,21 +286,23 @@ def stream_bag(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path,
                ground: NDArray[np.float64] | None = None, storage: str = "mcap",
                clock: bool = False, block_s: float = BLOCK_S,
                progress: Callable[[float], None] | None = None,
-               excite: Sequence[ExcitationSpec] = (), plant: SystemConfig | None = None
-               ) -> StreamResult:
+               excite: Sequence[ExcitationSpec] = (), plant: SystemConfig | None = None,
+               supervisor: Supervisor | None = None) -> StreamResult:
     """Simulate ``duration_s`` and write the bag ``out`` block by block (see the module notes).
 
     ``excite`` (checked specifications, as ``dcsms sim --excite``) adds an actuator excitation,
     generated block by block; ``plant`` simulates a plant that differs from ``cfg`` (the
     controllers and the recorded configuration keep ``cfg``). A run whose fast path meets a
     non-finite value is written again from the start on the object path (which owns the fault
-    handling), as :func:`~dcsms_ros.core.engine.simulate` does.
+    handling), as :func:`~dcsms_ros.core.engine.simulate` does. ``supervisor`` (fresh, as
+    :class:`~dcsms_ros.core.engine.Simulation` takes it) runs on the object path from the start,
+    so it is never restarted; its transitions go into the bag and the result.
     """
     args = (cfg, mode, duration_s, out, seed, schedule, ground, storage, clock, block_s,
             progress)
-    res = _stream(*args, None, excite, plant)
+    res = _stream(*args, None, excite, plant, supervisor)
     if res is None:
-        res = _stream(*args, False, excite, plant)
+        res = _stream(*args, False, excite, plant, supervisor)
         assert res is not None
         res.restarted = True
     return res
@@ -297,16 +312,18 @@ def _stream(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path, seed: i
             schedule: Sequence[tuple[float, Mode]], ground: NDArray[np.float64] | None,
             storage: str, clock: bool, block_s: float,
             progress: Callable[[float], None] | None, fast: bool | None,
-            excite: Sequence[ExcitationSpec] = (), plant: SystemConfig | None = None
-            ) -> StreamResult | None:
+            excite: Sequence[ExcitationSpec] = (), plant: SystemConfig | None = None,
+            supervisor: Supervisor | None = None) -> StreamResult | None:
     steps = int(round(duration_s * cfg.plant.rate_hz))
     block = max(1, int(round(block_s * cfg.plant.rate_hz)))
-    sim = Simulation(cfg, mode, seed, schedule, ground, trip=True, fast=fast, plant=plant)
+    sim = Simulation(cfg, mode, seed, schedule, ground, trip=True, fast=fast, plant=plant,
+                     supervisor=supervisor)
     exc = (Excitation(cfg, excite, cfg.disturbance.seed if seed is None else seed, duration_s)
            if excite else None)
     writer = _Writer(cfg, out, storage, clock, exc.stage - 1 if exc is not None else None)
     modes: list[tuple[int, str]] = []
     refused: list[tuple[int, str]] = []
+    supervision: list[Transition] = []
     res: SimResult | None = None
     try:
         for k in range(0, steps, block):
@@ -318,6 +335,7 @@ def _stream(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path, seed: i
                 return None
             modes += res.mode
             refused += res.refused
+            supervision += res.supervision
             writer.put(res)
             if progress is not None:
                 progress(min(k + block, steps) / steps)
@@ -326,7 +344,8 @@ def _stream(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path, seed: i
         writer.abort()
         raise
     counters = res.counters if res is not None else {}
-    return StreamResult(steps, counts, counters, modes, sim.trip, refused)
+    return StreamResult(steps, counts, counters, modes, sim.trip, refused,
+                        supervision=supervision)
 
 
 __all__ = ["BLOCK_S", "MAX_DURATION_S", "StreamResult", "TopicLayout", "bytes_per_sample",

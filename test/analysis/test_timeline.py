@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from burst import burst_floor, supervisor
 from numpy.testing import assert_allclose
 from scipy.signal import butter, sosfilt, sosfilt_zi
 
@@ -19,12 +20,10 @@ from dcsms_ros.analysis.export import write_result_bag
 from dcsms_ros.analysis.reader import config_from_yaml, read_bag
 from dcsms_ros.cli import main
 from dcsms_ros.core import topics
-from dcsms_ros.core.check import unstable_reason
 from dcsms_ros.core.config import SystemConfig, load_config
 from dcsms_ros.core.engine import SimResult, Simulation, simulate
-from dcsms_ros.core.floor import floor_gain
-from dcsms_ros.core.modes import ALL_MODES, Mode
-from dcsms_ros.core.supervisor import State, Supervisor, SupervisorSettings, Transition
+from dcsms_ros.core.modes import Mode
+from dcsms_ros.core.supervisor import State, Transition
 
 TABLE1 = Path(__file__).resolve().parents[2] / "config" / "table1.yaml"
 DURATION_S = 30.0
@@ -35,14 +34,9 @@ BURST_S = (8.0, 14.0)
 def burst_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[SimResult, Path]:
     """30 s of table1 DFBC+FFC with the supervisor, the floor x3000 from 8 to 14 s; its bag."""
     cfg = load_config(TABLE1)
-    fs = cfg.plant.rate_hz
-    ground = simulate(cfg, Mode.PASSIVE, DURATION_S + 1.0, trip=False).truth[:, 0].copy()
-    ground[int(BURST_S[0] * fs):int(BURST_S[1] * fs)] *= 3000.0
-    sup = Supervisor(SupervisorSettings(), Mode.DFBC_FFC,
-                     band_gain={m: floor_gain(cfg, m) for m in ALL_MODES},
-                     stable=lambda m: unstable_reason(cfg, m) is None)
-    res = Simulation(cfg, Mode.DFBC_FFC, ground=ground, supervisor=sup).run(
-        int(DURATION_S * fs))
+    res = Simulation(cfg, Mode.DFBC_FFC, ground=burst_floor(cfg, DURATION_S, *BURST_S),
+                     supervisor=supervisor(cfg, Mode.DFBC_FFC)).run(
+        int(DURATION_S * cfg.plant.rate_hz))
     assert res is not None
     out = tmp_path_factory.mktemp("timeline") / "burst"
     write_result_bag(res, out)
