@@ -234,7 +234,8 @@ def _md_timeline(s: Summary) -> str:
         lo, hi = tl.band_hz
         out += [(f"`{bag}`: mode in force and supervisor state at each window's end, ground "
                 f"velocity band RMS ({lo:g}-{hi:g} Hz, the trip's band; loudest of "
-                f"{', '.join(tl.axes)}), peak applied force over the window. "
+                f"{', '.join(tl.axes)}; +- one standard deviation from the window's equivalent "
+                f"degrees of freedom), peak applied force over the window. "
                 f"{tl.window_s:g} s windows; shown: the first and last, every change, the "
                 f"loudest ground."), ""]
         if tl.transitions:
@@ -245,7 +246,9 @@ def _md_timeline(s: Summary) -> str:
         out += [("| window (s) | mode | state | changes | ground BLRMS (m/s) | peak force (N) | "
                 "of limit |"), "|---|---|---|---:|---:|---:|---:|"]
         out += [f"| {r.t0_s:.2f}-{r.t1_s:.2f} | {r.mode or '-'} | {r.state or '-'} | "
-                f"{r.changes} | {_fmt(r.loudest(), '.3g')} | {_fmt(r.force_peak_n, '.4g')} | "
+                f"{r.changes} | {_fmt(r.loudest(), '.3g')} "
+                f"+- {_fmt(100.0 * r.ground_rel_std(), '.0f')} % | "
+                f"{_fmt(r.force_peak_n, '.4g')} | "
                 f"{_fmt(100.0 * r.force_fraction, '.1f')} % |" for r in tl.condensed()]
         out.append("")
     return "\n".join(out).rstrip()

@@ -12,7 +12,9 @@ The ground BLRMS is the supervisor's own measure: the recorded ground velocity (
 true when the bag has no decoupled one) through the instability trip's band-pass
 (``control.trip_band_hz``, :class:`~dcsms_ros.core.trip.TripMonitor`, started in the steady
 state of the first sample), RMS over each window; translations only (the bag reader keeps
-x, y, z). Samples are taken as uniformly spaced at the median rate (a drop shifts the filter by
+x, y, z), with its relative standard deviation from the window's own equivalent degrees of
+freedom (:func:`.uncertainty.envelope_dof`: a window's RMS as an estimate of a stationary
+floor's). Samples are taken as uniformly spaced at the median rate (a drop shifts the filter by
 one sample, not the window). The force is ``|applied|`` of each actuator over its limit
 (:func:`~dcsms_ros.core.check.actuator_limits`).
 """
@@ -27,6 +29,7 @@ import numpy as np
 
 from dcsms_ros.analysis.reader import BagData
 from dcsms_ros.analysis.series import AXIS_NAMES
+from dcsms_ros.analysis.uncertainty import envelope_dof
 from dcsms_ros.core.check import actuator_limits
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.trip import TripMonitor
@@ -77,6 +80,9 @@ class Row:
         Mode switches and supervisor transitions inside the window.
     ground_blrms_mps : tuple of float, shape (axes,)
         Ground velocity band RMS in the trip band per axis of :attr:`Timeline.axes`, m/s.
+    ground_dof : float
+        Equivalent degrees of freedom of the loudest axis' mean square over the window
+        (:func:`.uncertainty.envelope_dof`), 1; nan when unknown.
     force_peak_n : float
         Largest ``|applied force|`` of any actuator in the window, N (nan without samples).
     force_fraction : float
@@ -91,6 +97,7 @@ class Row:
     state: str | None
     changes: int
     ground_blrms_mps: tuple[float, ...]
+    ground_dof: float
     force_peak_n: float
     force_fraction: float
     samples: int
@@ -98,6 +105,11 @@ class Row:
     def loudest(self) -> float:
         """The loudest axis' ground band RMS, m/s (nan without samples)."""
         return max(self.ground_blrms_mps) if self.samples else float("nan")
+
+    def ground_rel_std(self) -> float:
+        """Relative standard deviation of :meth:`loudest` as an estimate of the floor's band
+        RMS (a scaled chi-square mean square: ``1 / sqrt(2 nu)``), 1."""
+        return 1.0 / float(np.sqrt(2.0 * self.ground_dof)) if self.ground_dof > 0 else float("nan")
 
 
 @dataclass(frozen=True)
@@ -157,6 +169,7 @@ class Timeline:
             "rows": [{"t0_s": r.t0_s, "t1_s": r.t1_s, "mode": r.mode, "state": r.state,
                       "changes": r.changes,
                       "ground_blrms_mps": dict(zip(self.axes, r.ground_blrms_mps, strict=True)),
+                      "ground_dof": r.ground_dof, "ground_rel_std": r.ground_rel_std(),
                       "force_peak_n": r.force_peak_n, "force_fraction": r.force_fraction,
                       "samples": r.samples} for r in self.rows],
         }
@@ -168,7 +181,8 @@ class Timeline:
         out += [f"  {e.t_s:9.4f} s  {e.state:<12} {e.mode:<9} {e.reason}"
                 for e in self.transitions]
         out += [f"  {r.t0_s:8.2f}-{r.t1_s:<8.2f} {r.mode or '-':<9} {r.state or '-':<12} "
-                f"ground {r.loudest():.3g} m/s  force {r.force_peak_n:.4g} N "
+                f"ground {r.loudest():.3g} m/s +-{100.0 * r.ground_rel_std():.0f} %  "
+                f"force {r.force_peak_n:.4g} N "
                 f"({100.0 * r.force_fraction:.1f} % of limit)" for r in self.condensed()]
         return out
 
@@ -255,6 +269,8 @@ def build(data: BagData, cfg: SystemConfig, window_s: float = WINDOW_S) -> Timel
                         tuple(bad))
     fs = 1e9 / float(np.median(np.diff(st)))
     mon = TripMonitor(cfg.control, fs, len(cols))
+    lo, hi = cfg.control.trip_band_hz
+    width = min(hi, fs / 2.0) - max(lo, 0.0)
     t0 = int(st[0])
     w_ns = int(round(window_s * 1e9))
     edges = np.arange(t0, int(st[-1]) + w_ns, w_ns, dtype=np.int64)
@@ -273,13 +289,14 @@ def build(data: BagData, cfg: SystemConfig, window_s: float = WINDOW_S) -> Timel
         y = mon.filter(ground.values[gi[i]:gi[i + 1]][:, cols])
         blrms = (tuple(np.sqrt(np.mean(y * y, axis=0)).tolist()) if y.shape[0]
                  else tuple(float("nan") for _ in cols))
+        dof = envelope_dof(y[:, int(np.argmax(blrms))], fs, width) if y.shape[0] else np.nan
         peak = frac = float("nan")
         if fi is not None and applied is not None and fi[i + 1] > fi[i]:
             f = np.abs(applied.values[fi[i]:fi[i + 1]].astype(np.float64)).max(axis=0)
             peak, frac = float(f.max()), float((f / lim).max())
         rows.append(Row(a, b, _at(m_t, m_l, b), _at(e_t, e_s, b),
-                        int(np.count_nonzero((changes >= a) & (changes < b))), blrms, peak,
-                        frac, int(gi[i + 1] - gi[i])))
+                        int(np.count_nonzero((changes >= a) & (changes < b))), blrms,
+                        float(dof), peak, frac, int(gi[i + 1] - gi[i])))
     return Timeline(window_s, cfg.control.trip_band_hz, axes, limits, tuple(rows), events,
                     modes, tuple(bad))
 

@@ -119,6 +119,20 @@ def test_ground_blrms_equals_an_independent_estimate(burst_run: tuple[SimResult,
 
 
 @pytest.mark.slow
+def test_ground_blrms_scatter_matches_its_standard_deviation(read_back: timeline.Timeline
+                                                             ) -> None:
+    """Away from the burst (and the decoupled ground's ring-down in the 4 s after it: the
+    geophone correction), the floor is stationary: the 1 s rows scatter as their own
+    equivalent degrees of freedom say. 20 windows: the scatter's own relative error is
+    ~1/sqrt(2 * 19) = 16 %, so 0.6-1.6 is about 3 of it either way."""
+    rows = [r for r in read_back.rows if r.t1_s <= BURST_S[0] or r.t0_s >= BURST_S[1] + 4.0]
+    assert len(rows) == 20
+    g = np.array([r.loudest() for r in rows])
+    predicted = np.median([r.ground_rel_std() for r in rows])
+    assert 0.6 < (np.std(g, ddof=1) / np.mean(g)) / predicted < 1.6, (g, predicted)
+
+
+@pytest.mark.slow
 def test_force_peaks_equal_the_applied_forces(burst_run: tuple[SimResult, Path],
                                               read_back: timeline.Timeline) -> None:
     """Peak |applied| per 1 s window, N and as a fraction of each actuator's limit."""
