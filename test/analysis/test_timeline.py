@@ -15,8 +15,10 @@ from burst import burst_floor, supervisor
 from numpy.testing import assert_allclose
 from scipy.signal import butter, sosfilt, sosfilt_zi
 
+from dcsms_ros import cdr
 from dcsms_ros.analysis import timeline
-from dcsms_ros.analysis.export import write_result_bag
+from dcsms_ros.analysis.bagio import LATCHED_QOS, open_bag
+from dcsms_ros.analysis.export import export_result, write_result_bag
 from dcsms_ros.analysis.reader import config_from_yaml, read_bag
 from dcsms_ros.cli import main
 from dcsms_ros.core import topics
@@ -160,6 +162,33 @@ def test_rows_carry_mode_and_state(read_back: timeline.Timeline) -> None:
     shown = read_back.condensed()
     assert shown[0] is rows[0] and shown[-1] is rows[-1]
     assert all(r in shown for r in rows if r.changes)
+
+
+def test_transition_time_comes_from_the_text(tmp_path: Path) -> None:
+    """A recorder on another clock: bag times 1000 s late, a transient-local text delivered
+    twice, a text that is no transition; the timeline places each transition at its T, once,
+    and warns about the other text."""
+    cfg = load_config(TABLE1)
+    res = simulate(cfg, Mode.DFBC_FFC, 3.0)
+    texts = [Transition(1999, 0.9995, State.RIDE_THROUGH, Mode.FBC, "loud").label,
+             Transition(3999, 1.9995, State.RECOVERING, Mode.DFBC_FFC, "quiet").label]
+    late = 1_000_000_000_000
+    with open_bag(tmp_path / "bag") as w:
+        export_result(res, w)
+        w.add_topic(topics.SUPERVISOR_STATE, cdr.STRING, LATCHED_QOS)
+        for t_ns, text in [(late, texts[0]), (late + 5, texts[0]), (late + 7, "hello"),
+                           (late + 9, texts[1])]:
+            w.write(topics.SUPERVISOR_STATE, t_ns, cdr.encode_string(text))
+    tl = timeline.build(read_bag(tmp_path / "bag"), cfg)
+    assert tl is not None
+    assert [(e.t_s, e.state) for e in tl.transitions] == [(0.9995, "RIDE_THROUGH"),
+                                                         (1.9995, "RECOVERING")]
+    # state at each window's end, transitions inside it
+    assert [(r.state, r.changes) for r in tl.rows] == [("RIDE_THROUGH", 1), ("RECOVERING", 1),
+                                                       ("RECOVERING", 0)]
+    assert all(r.mode == "DFBC+FFC" for r in tl.rows)  # the bag's own /dcsms/mode
+    (warning,) = tl.warnings
+    assert "'hello'" in warning
 
 
 @pytest.mark.parametrize("state", list(State))
