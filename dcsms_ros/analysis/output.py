@@ -240,7 +240,7 @@ def _md_timeline(s: Summary) -> str:
                 f"loudest ground."), ""]
         if tl.transitions:
             out += ["| t (s) | state | mode | reason |", "|---:|---|---|---|"]
-            out += [f"| {e.t_s:.4f} | {e.state} | {e.mode} | {e.reason} |"
+            out += [f"| {e.t_s:.4f} | {e.state} | {e.mode} | {e.reason.replace('|', '/')} |"
                     for e in tl.transitions]
             out.append("")
         out += [("| window (s) | mode | state | changes | ground BLRMS (m/s) | peak force (N) | "
