@@ -12,13 +12,16 @@ topic                           type                        content
 /dcsms/force/excitation         geometry_msgs/WrenchStamped excitation (if any), frame_id = stage
 /dcsms/actuators/applied        sensor_msgs/JointState      ``name`` = actuators, ``effort`` N
 /dcsms/mode                     std_msgs/String             label at every switch (latched QoS)
+/dcsms/supervisor/state         std_msgs/String             every supervisor transition (latched)
 /dcsms/config                   std_msgs/String             flat parameters as YAML (latched)
 /clock (only if asked)          rosgraph_msgs/Clock         sim time
 ==============================  ==========================  ===================================
 
 Bag time and header stamp of sample k are both its sim time ``k * dt`` in ns (plus ``t0_ns``).
-``/clock`` is left out by default because the recorder leaves it out by default, so a batch
-bag and a graph recording hold the same topics. ``/diagnostics`` is not synthesised (the
+``/dcsms/supervisor/state`` holds one ``Transition.label`` per entry of ``res.supervision`` at
+its sample's time, and is there only when the run has a transition. ``/clock`` is left out by
+default because the recorder leaves it out by default, so a batch bag and a graph recording
+hold the same topics. ``/diagnostics`` is not synthesised (the
 batch run's fault counters are returned by :func:`export_result` instead). A 1-DOF run fills
 only the z component (index 2) of each twist and wrench.
 
@@ -111,6 +114,8 @@ def export_result(res: SimResult, writer: BagWriter, t0_ns: int = 0, clock: bool
     k_total = t_ns.size
     writer.add_topic(CONFIG_TOPIC, cdr.STRING, LATCHED_QOS)
     writer.add_topic(topics.MODE, cdr.STRING, LATCHED_QOS)
+    if res.supervision:
+        writer.add_topic(topics.SUPERVISOR_STATE, cdr.STRING, LATCHED_QOS)
     writer.add_topic(topics.SENSORS_RAW, cdr.JOINT_STATE)
     for b in bodies:
         writer.add_topic(topics.truth_topic(b), cdr.TWIST_STAMPED)
@@ -128,6 +133,10 @@ def export_result(res: SimResult, writer: BagWriter, t0_ns: int = 0, clock: bool
     for k, label in res.mode:
         if k < k_total:
             writer.write(topics.MODE, int(t_ns[k]), cdr.encode_string(label))
+    for tr in res.supervision:
+        if tr.sample < k_total:
+            writer.write(topics.SUPERVISOR_STATE, int(t_ns[tr.sample]),
+                         cdr.encode_string(tr.label))
     for start in range(0, k_total, block):
         sl = slice(start, min(start + block, k_total))
         t = t_ns[sl]

@@ -108,6 +108,8 @@ def markdown(summary: Summary, figures: list[str]) -> str:
     if summary.paper is not None:
         lines[lines.index("## Vibration criteria (one-third-octave RMS velocity, 1-80 Hz)"):0] = [
             "## Paper comparison", "", _md_paper(summary), ""]
+    if summary.timelines:
+        lines += ["## Timeline", "", _md_timeline(summary), ""]
     if figures:
         lines += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
     if summary.warnings:
@@ -223,6 +225,33 @@ def _md_forces(s: Summary) -> str:
                     f"{_fmt(c['peak_n'], '.3g')} | {_fmt(c['limit_n'], '.4g')} | "
                     f"{c['saturated_samples']} |" for c in seg.get("forces", []))
     return "\n".join(rows) if len(rows) > 2 else "No `/dcsms/actuators/applied` data."
+
+
+def _md_timeline(s: Summary) -> str:
+    """Per bag: the supervisor transitions, then the condensed windows (:mod:`.timeline`)."""
+    out = []
+    for bag, tl in s.timelines:
+        lo, hi = tl.band_hz
+        out += [(f"`{bag}`: mode in force and supervisor state at each window's end, ground "
+                f"velocity band RMS ({lo:g}-{hi:g} Hz, the trip's band; loudest of "
+                f"{', '.join(tl.axes)}; +- one standard deviation from the window's equivalent "
+                f"degrees of freedom), peak applied force over the window. "
+                f"{tl.window_s:g} s windows; shown: the first and last, every change, the "
+                f"loudest ground."), ""]
+        if tl.transitions:
+            out += ["| t (s) | state | mode | reason |", "|---:|---|---|---|"]
+            out += [f"| {e.t_s:.4f} | {e.state} | {e.mode} | {e.reason.replace('|', '/')} |"
+                    for e in tl.transitions]
+            out.append("")
+        out += [("| window (s) | mode | state | changes | ground BLRMS (m/s) | peak force (N) | "
+                "of limit |"), "|---|---|---|---:|---:|---:|---:|"]
+        out += [f"| {r.t0_s:.2f}-{r.t1_s:.2f} | {r.mode or '-'} | {r.state or '-'} | "
+                f"{r.changes} | {_fmt(r.loudest(), '.3g')} "
+                f"+- {_fmt(100.0 * r.ground_rel_std(), '.0f')} % | "
+                f"{_fmt(r.force_peak_n, '.4g')} | "
+                f"{_fmt(100.0 * r.force_fraction, '.1f')} % |" for r in tl.condensed()]
+        out.append("")
+    return "\n".join(out).rstrip()
 
 
 __all__ = ["markdown", "write_all"]

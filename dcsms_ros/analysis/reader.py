@@ -71,6 +71,9 @@ class BagData:
     applied: TopicSeries | None = None
     excitation: TopicSeries | None = None  # frame_id: the excited stage
     modes: list[ModeEvent] = field(default_factory=list)
+    #: ``/dcsms/supervisor/state`` as recorded: (bag time ns, text); the text carries the
+    #: transition's plant time (:mod:`.timeline` parses it)
+    states: list[tuple[int, str]] = field(default_factory=list)
     config_text: str | None = None
     source: str = "velocity"  # or "truth"
     warnings: list[str] = field(default_factory=list)
@@ -163,7 +166,8 @@ def _read(reader: Any, path: Path, progress: Progress | None, chunk: int) -> Bag
     for c in conns:
         applied = c.topic == topics.ACTUATORS_APPLIED and c.msgtype == cdr.JOINT_STATE
         excite = c.topic == topics.EXCITATION and c.msgtype == cdr.WRENCH_STAMPED
-        text = c.topic in (topics.MODE, CONFIG_TOPIC) and c.msgtype == cdr.STRING
+        text = (c.topic in (topics.MODE, topics.SUPERVISOR_STATE, CONFIG_TOPIC)
+                and c.msgtype == cdr.STRING)
         if applied or excite or text:
             wanted[c.topic] = c
     sinks = {t: TopicSink(c, keep_log=(t == chosen[ref_body].topic))
@@ -175,11 +179,14 @@ def _read(reader: Any, path: Path, progress: Progress | None, chunk: int) -> Bag
         value = cdr.decode_string(bytes(raw))
         if conn.topic == topics.MODE:
             mode_log.append((t_ns, value.strip()))
+        elif conn.topic == topics.SUPERVISOR_STATE:
+            data.states.append((t_ns, value.strip()))
         elif data.config_text is None:
             data.config_text = value
 
     if not _read_chunks(reader, wanted, sinks, on_text, progress, total):
         mode_log.clear()
+        data.states.clear()
         sinks = {t: TopicSink(s.conn, s.keep_log) for t, s in sinks.items()}
         _read_messages(reader, wanted, sinks, on_text, progress, total, chunk)
     if progress is not None:

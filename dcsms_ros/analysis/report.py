@@ -12,6 +12,7 @@ import numpy as np
 from dcsms_ros.analysis import estimators as est
 from dcsms_ros.analysis import frf, output, timefreq
 from dcsms_ros.analysis import paper as paper_table
+from dcsms_ros.analysis import timeline as tline
 from dcsms_ros.analysis.criteria import evaluate
 from dcsms_ros.analysis.modelfrf import LoopFrf
 from dcsms_ros.analysis.reader import BagData, Progress, config_from_yaml, read_bag
@@ -43,7 +44,7 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
             settle_s: float | Mapping[str, float] | None = None, from_rest: bool = False,
             export: str | None = None,
             blrms_bands: Sequence[tuple[float, float]] = timefreq.DEFAULT_BANDS,
-            paper: bool | None = None) -> Summary:
+            paper: bool | None = None, timeline_s: float = tline.WINDOW_S) -> Summary:
     """Analyse one or more DCSMS bags mode by mode.
 
     Parameters
@@ -73,6 +74,9 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
     paper : bool, optional
         Compare the mode table with the paper's Table 4 (:mod:`.paper`); default: when the
         configuration is 6-DOF (the paper's table is the three-point TEM in X, Y, Z).
+    timeline_s : float
+        Window of the timeline rows (:mod:`.timeline`) of a bag with supervisor transitions
+        or mode switches, s (> 0).
 
     Raises
     ------
@@ -80,8 +84,11 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
         A bag cannot be read (the message names it).
     """
     ref_mode = parse_mode(reference)
+    if not timeline_s > 0.0:
+        raise DcsmsError(f"timeline window {timeline_s:g} s: must be > 0")
     warnings: list[str] = []
     work: list[tuple[BagData, Segment, SystemConfig | None]] = []
+    timelines: list[tuple[str, tline.Timeline]] = []
     cfg_source = None
     for b in bags:
         data = read_bag(b, progress)
@@ -93,6 +100,9 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
             warnings.append(f"{data.path}: no /dcsms/config and no --config: no analytic "
                             "overlay; force limits from the defaults")
         cfg_source = cfg_source or (cfg.source if cfg else None)
+        tl = _timeline(data, cfg, timeline_s, warnings)
+        if tl is not None:
+            timelines.append((str(data.path), tl))
         ref = next(iter(data.bodies.values()))
         if ref.stamp_ns.size == 0:
             warnings.append(f"{data.path}: no velocity samples")
@@ -105,7 +115,8 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
         work.extend((data, seg, cfg) for seg in split_excited(segs, data.excitation, settle))
     axes = _axes(work)
     summary = Summary([str(b) for b in bags], ref_mode.label, axes, warnings=warnings,
-                      config_source=cfg_source, blrms_bands_hz=[list(b) for b in blrms_bands])
+                      config_source=cfg_source, blrms_bands_hz=[list(b) for b in blrms_bands],
+                      timelines=timelines)
     results = []
     models: dict[Any, LoopFrf | None] = {}
     verdicts: dict[Any, Stability] = {}
@@ -124,6 +135,22 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
         summary.timefreq = _timefreq(work, axes, blrms_bands, summary)
         output.write_all(Path(out_dir), summary, results, export)
     return summary
+
+
+def _timeline(data: BagData, cfg: SystemConfig | None, window_s: float,
+              warnings: list[str]) -> tline.Timeline | None:
+    """The bag's timeline when it has supervisor transitions or mode switches (None
+    otherwise, or without a configuration: its trip band and force limits are the scale)."""
+    if not data.states and len(data.modes) < 2:
+        return None
+    if cfg is None:
+        warnings.append(f"{data.path}: no timeline without a configuration (the trip band "
+                        "and the force limits come from it)")
+        return None
+    tl = tline.build(data, cfg, window_s)
+    if tl is not None:
+        warnings.extend(tl.warnings)
+    return tl
 
 
 def _axes(work: list[tuple[BagData, Segment, SystemConfig | None]]) -> list[str]:

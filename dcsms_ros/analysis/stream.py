@@ -6,7 +6,8 @@ writer thread encodes each block's topics as byte matrices (the fixed CDR layout
 goes through :mod:`.bagio`), while the main thread simulates the next block (the compiled loop
 releases the GIL). At most two blocks are alive at once, so memory stays bounded whatever the
 duration. The bag holds the topics :func:`.export.export_result` writes, in the same order and
-with the same bytes.
+with the same bytes (``/dcsms/supervisor/state`` too: its topic is added at the first
+transition, as the one-shot export has it only when there is one).
 
 :func:`check_run` refuses, before anything is written, a run whose bag would not fit on the disk
 (estimated from the message layouts and the compression measured on the graph's streams) or
@@ -39,6 +40,7 @@ from dcsms_ros.core.excitation import Excitation, ExcitationSpec
 from dcsms_ros.core.model import actuator_count
 from dcsms_ros.core.modes import ControllerId, Mode, controller_ids
 from dcsms_ros.core.sensors import channel_layout
+from dcsms_ros.core.supervisor import Transition
 from dcsms_ros.errors import DcsmsError
 
 #: Simulated seconds per block.
@@ -71,7 +73,7 @@ class StreamResult:
     trip: Any = None
     refused: list[tuple[int, str]] = field(default_factory=list)
     restarted: bool = False
-    supervision: list[Any] = field(default_factory=list)  # the supervisor's Transitions
+    supervision: list[Transition] = field(default_factory=list)
 
 
 def layouts(cfg: SystemConfig, channel_names: Sequence[str], actuator_names: Sequence[str],
@@ -163,6 +165,7 @@ class _Writer:
         self._tpl: RowTemplate | None = None
         self._modes: list[tuple[int, str]] = []  # mode changes not written yet (a trip's
         # Passive may fall on the next block's first sample)
+        self._states: list[Transition] = []  # supervisor transitions not written yet
         self.queue: queue.Queue[Any] = queue.Queue(maxsize=1)
         self.error: BaseException | None = None
         self.counts: dict[str, int] = {}
@@ -237,11 +240,20 @@ class _Writer:
         self._modes += res.mode
         now = [(k - k0, lab) for k, lab in self._modes if k < end]
         self._modes = [(k, lab) for k, lab in self._modes if k >= end]
-        cuts = sorted({k for k, _ in now} | {0})
+        self._states += res.supervision
+        states = [tr for tr in self._states if tr.sample < end]
+        self._states = [tr for tr in self._states if tr.sample >= end]
+        if states and topics.SUPERVISOR_STATE not in self.bag.counts:
+            self.bag.add_topic(topics.SUPERVISOR_STATE, cdr.STRING, LATCHED_QOS)
+        cuts = sorted({k for k, _ in now} | {tr.sample - k0 for tr in states} | {0})
         labels = dict(now)
         for a, b in zip(cuts, [*cuts[1:], t_ns.size], strict=True):
             if a in labels:
                 self.bag.write(topics.MODE, int(t_ns[a]), cdr.encode_string(labels[a]))
+            for tr in states:
+                if tr.sample - k0 == a:
+                    self.bag.write(topics.SUPERVISOR_STATE, int(t_ns[a]),
+                                   cdr.encode_string(tr.label))
             self._rows(t_ns[a:b], names, [r[a:b] for r in rows])
 
     def _rows(self, t: NDArray[np.int64], names: list[str], rows: list[NDArray[np.uint8]]) -> None:
@@ -282,7 +294,9 @@ def stream_bag(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path,
     generated block by block; ``plant`` simulates a plant that differs from ``cfg`` (the
     controllers and the recorded configuration keep ``cfg``). A run whose fast path meets a
     non-finite value is written again from the start on the object path (which owns the fault
-    handling), as :func:`~dcsms_ros.core.engine.simulate` does.
+    handling), as :func:`~dcsms_ros.core.engine.simulate` does. ``supervisor`` (fresh, as
+    :class:`~dcsms_ros.core.engine.Simulation` takes it) runs on the object path from the start,
+    so it is never restarted; its transitions go into the bag and the result.
     """
     args = (cfg, mode, duration_s, out, seed, schedule, ground, storage, clock, block_s,
             progress)
@@ -309,7 +323,7 @@ def _stream(cfg: SystemConfig, mode: Mode, duration_s: float, out: Path, seed: i
     writer = _Writer(cfg, out, storage, clock, exc.stage - 1 if exc is not None else None)
     modes: list[tuple[int, str]] = []
     refused: list[tuple[int, str]] = []
-    supervision: list[Any] = []
+    supervision: list[Transition] = []
     res: SimResult | None = None
     try:
         for k in range(0, steps, block):

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from dcsms_ros.analysis import modetable, timefreq
+from dcsms_ros.analysis.timeline import Timeline
 from dcsms_ros.jsonutil import jsonable
 
 
@@ -26,6 +27,10 @@ class Summary:
         Label of the reference mode; ``resonance_hz`` its resonance per axis (Hz).
     files : list of str
         Written files (report.md, PNGs, summary.json) when ``out_dir`` was given.
+    timelines : list of (str, Timeline)
+        Per bag with supervisor transitions or mode switches: its path and
+        :class:`~dcsms_ros.analysis.timeline.Timeline` (``summary.json``: ``timeline``, only
+        when there is one).
     """
 
     bags: list[str]
@@ -42,16 +47,19 @@ class Summary:
     blrms_bands_hz: list[list[float]] = field(default_factory=list)
     #: (bag index, axis, TimeFrequency) of the top stage per bag and axis, for the figures
     timefreq: list[tuple[int, str, timefreq.TimeFrequency]] = field(default_factory=list)
+    timelines: list[tuple[str, Timeline]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (no arrays of spectra; those go to the plots)."""
+        extra = ({"timeline": [{"bag": b, **tl.to_dict()} for b, tl in self.timelines]}
+                 if self.timelines else {})
         return jsonable({
             "bags": self.bags, "reference": self.reference, "axes": self.axes,
             "resonance_hz": self.resonance_hz, "config_source": self.config_source,
             "blrms_bands_hz": self.blrms_bands_hz,
             "table4_definition": " ".join(self.definition.split()),
             "segments": self.segments, "warnings": self.warnings, "files": self.files,
-            "paper_comparison": self.paper,
+            "paper_comparison": self.paper, **extra,
         })
 
     def table(self) -> str:

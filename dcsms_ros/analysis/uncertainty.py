@@ -43,11 +43,22 @@ def band_dof(x: Array, fs: float, lo_hz: float, hi_hz: float,
     """Equivalent degrees of freedom of the power of ``x`` (sampled at ``fs`` Hz) between
     ``lo_hz`` and ``hi_hz`` (Hz) over the whole record; nan for a record too short or silent."""
     v = np.asarray(x, dtype=np.float64)
-    n = v.size
-    if n < 16 or not 0.0 < lo_hz < hi_hz < fs / 2.0:
+    if v.size < 16 or not 0.0 < lo_hz < hi_hz < fs / 2.0:
         return float("nan")
     sos = signal.butter(BAND_ORDER, [lo_hz, hi_hz], btype="bandpass", fs=fs, output="sos")
-    z = signal.hilbert(signal.sosfiltfilt(sos, v - v.mean()))
+    return envelope_dof(signal.sosfiltfilt(sos, v - v.mean()), fs, hi_hz - lo_hz, lag_fraction)
+
+
+def envelope_dof(y: Array, fs: float, width_hz: float,
+                 lag_fraction: float = LAG_FRACTION) -> float:
+    """Equivalent degrees of freedom of the mean square of ``y``, a record already band-passed
+    to a band ``width_hz`` (Hz) wide, sampled at ``fs`` Hz (the module notes); nan for a record
+    too short or silent."""
+    v = np.asarray(y, dtype=np.float64)
+    n = v.size
+    if n < 16 or not width_hz > 0.0:
+        return float("nan")
+    z = signal.hilbert(v)
     size = 1 << int(np.ceil(np.log2(2 * n)))
     spec = np.fft.fft(z, size)
     r = np.abs(np.fft.ifft(spec * np.conj(spec))[:n])
@@ -57,7 +68,7 @@ def band_dof(x: Array, fs: float, lo_hz: float, hi_hz: float,
     # the estimate's own noise, ~1/sqrt(T B) with B <= the band's width, would add to every
     # lag's rho^2: integrate up to where rho first falls to it (what a decay loses beyond that
     # is rho^2 there, ~5 %), at most lag_fraction of the record
-    floor = 1.0 / np.sqrt(n / fs * (hi_hz - lo_hz))
+    floor = 1.0 / np.sqrt(n / fs * width_hz)
     below = np.flatnonzero(rho[1:] < floor)
     lags = max(min(int(below[0]) + 1 if below.size else n, int(lag_fraction * n)), 1)
     rho2 = rho[:lags] ** 2 * (1.0 - np.arange(lags) / n)
@@ -83,4 +94,4 @@ def ratio_interval(ratio: float, dof_num: float, dof_den: float,
     return float(np.sqrt(lo)), float(np.sqrt(hi))
 
 
-__all__ = ["BAND_ORDER", "LAG_FRACTION", "LEVEL", "band_dof", "ratio_interval"]
+__all__ = ["BAND_ORDER", "LAG_FRACTION", "LEVEL", "band_dof", "envelope_dof", "ratio_interval"]

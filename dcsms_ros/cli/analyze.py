@@ -36,6 +36,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--blrms", default="1-3,3-10,10-30", metavar="BANDS",
                    help="bands (Hz) of the band-limited RMS trends in the report and of each "
                    "segment's blrms_mps (default 1-3,3-10,10-30)")
+    p.add_argument("--timeline-window", type=float, default=1.0, metavar="S",
+                   help="window (s) of the timeline rows of a bag with supervisor transitions "
+                   "or mode switches (default 1)")
     p.add_argument("--settle", type=float, default=None, metavar="S",
                    help="seconds dropped after each mode switch (default: per mode, the fade "
                    "plus 3 time constants of the new loop's slowest pole near the analysed band, "
@@ -74,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config) if args.config is not None else None
     summary = analyze(args.bags, reference=args.reference, out_dir=args.out, config=cfg,
                       progress=ProgressBar(), settle_s=args.settle, export=args.export,
-                      blrms_bands=bands, paper=args.paper)
+                      blrms_bands=bands, paper=args.paper, timeline_s=args.timeline_window)
     if args.json:
         print(dumps(summary))
         return 0
@@ -93,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
                                            for t, v in seg["axes"][a]["vc"].items())
                        for a in summary.axes)
         print(f"  {seg['mode']:<10} VC {vc}")
+    for bag, tl in summary.timelines:
+        print(f"{bag}: " + "\n".join(tl.lines()))
     for w in summary.warnings:
         print(f"warning: {w}", file=sys.stderr)
     if summary.files:

@@ -164,9 +164,9 @@ EXCITATION = DEFAULT.force(EXCITATION_ID)
 SENSORS_RAW = DEFAULT.sensors_raw
 ACTUATORS_APPLIED = DEFAULT.actuators_applied
 MODE = DEFAULT.mode
+SUPERVISOR_STATE = DEFAULT.supervisor_state
 CONFIG = DEFAULT.config
 RESET_TRIP = DEFAULT.reset_trip
-SUPERVISOR_STATE = DEFAULT.supervisor_state
 
 
 def body_names(num_stages: int) -> tuple[str, ...]:

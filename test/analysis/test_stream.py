@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from burst import burst_floor, supervisor
 from rosbags.rosbag2 import Reader
 
 from dcsms_ros.analysis import stream
@@ -18,8 +19,9 @@ from dcsms_ros.cli import main
 from dcsms_ros.cli.common import default_config_path
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import load_config, with_overrides
-from dcsms_ros.core.engine import simulate
+from dcsms_ros.core.engine import Simulation, simulate
 from dcsms_ros.core.modes import Mode
+from dcsms_ros.core.supervisor import State
 from dcsms_ros.errors import BagError, DcsmsError
 
 CFG = load_config(default_config_path())
@@ -50,6 +52,28 @@ def test_stream_equals_simulate_and_export(tmp_path: Path, storage: str) -> None
     assert not (tmp_path / "streamed.partial").exists()
 
 
+@pytest.mark.parametrize(("storage", "block_s"), [("mcap", 1.05), ("sqlite3", 0.3)])
+def test_supervisor_transitions_stream_as_exported(tmp_path: Path, storage: str,
+                                                   block_s: float) -> None:
+    """The floor x3000 from 1 to 2 s: RIDE_THROUGH at the checkpoint ending at sample 2099
+    (with 1.05 s blocks the last of the first block, its FBC the next block's first sample);
+    every message, supervisor/state included, equals the one-shot export's."""
+    ground = burst_floor(CFG, 4.0, 1.0, 2.0)
+    res = Simulation(CFG, Mode.DFBC_FFC, ground=ground,
+                     supervisor=supervisor(CFG, Mode.DFBC_FFC)).run(int(4.0 * CFG.plant.rate_hz))
+    assert res is not None
+    assert [(tr.sample, tr.state) for tr in res.supervision] == [(2099, State.RIDE_THROUGH)]
+    write_result_bag(res, tmp_path / "ref")
+    # the supervisor stream_bag builds from the configuration decides the same
+    got = stream.stream_bag(CFG, Mode.DFBC_FFC, 4.0, tmp_path / "s", ground=ground,
+                            storage=storage, block_s=block_s)
+    assert got.supervision == res.supervision
+    ref = _messages(tmp_path / "ref")
+    assert len(ref[topics.SUPERVISOR_STATE]) == 1
+    assert _messages(tmp_path / "s") == ref
+    assert got.counts == {t: len(m) for t, m in ref.items()}
+
+
 def test_a_trip_on_a_block_edge_is_written_once(tmp_path: Path) -> None:
     """The stage-2 gain x50 trips at sample 99; its Passive falls on sample 100, the first
     of the second 0.05 s block: the mode messages equal the one-shot export's."""
@@ -59,7 +83,8 @@ def test_a_trip_on_a_block_edge_is_written_once(tmp_path: Path) -> None:
     assert res.mode == [(0, "DFBC"), (100, "Passive")]
     write_result_bag(res, tmp_path / "ref")
     got = stream.stream_bag(bad, Mode.DFBC, 0.2, tmp_path / "s", block_s=0.05)
-    assert got.trip is not None and got.trip.sample == 99
+    first = got.supervision[0]  # the supervisor (on by default) trips there
+    assert first.state is State.TRIPPED and first.sample == 99
     assert _messages(tmp_path / "s") == _messages(tmp_path / "ref")
 
 
