@@ -16,7 +16,9 @@ import pytest
 from rosbags.rosbag2 import Reader
 
 from dcsms_ros import cdr
+from dcsms_ros.analysis import timeline
 from dcsms_ros.analysis.export import write_result_bag
+from dcsms_ros.analysis.reader import config_from_yaml, read_bag
 from dcsms_ros.analysis.replay import load_ground
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig, with_overrides
@@ -75,6 +77,14 @@ def test_graph_rides_through_a_replayed_burst_like_the_batch_engine(domain: int,
     assert labels == ["ENGAGED DFBC+FFC at 0.0000 s: start",
                       *(tr.label for tr in ref.supervision)], labels
     assert [cdr.decode_string(m) for m in got[topics.MODE]] == [m for _, m in ref.mode]
+    # the analysis timeline of the graph's bag (wall-clock bag times) reads them back
+    data = read_bag(out)
+    tl = timeline.build(data, config_from_yaml(data.config_text))
+    assert tl is not None
+    assert [(e.state, e.mode) for e in tl.transitions] == [
+        ("ENGAGED", "DFBC+FFC"), *((tr.state.value, tr.mode.label) for tr in ref.supervision)]
+    np.testing.assert_allclose([e.t_s for e in tl.transitions[1:]],
+                               [tr.t_s for tr in ref.supervision], atol=1e-4)
     k = ref.t.size
     for c in controller_ids(cfg.plant.num_stages):
         b = cdr.decode_batch(cdr.WRENCH_STAMPED, got[topics.force_topic(c)])
