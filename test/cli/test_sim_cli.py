@@ -39,7 +39,9 @@ def test_sim_writes_bag(bag: Path) -> None:
         counts = {c.topic: c.msgcount for c in r.connections}
     assert counts["/dcsms/velocity/stage2"] == counts["/clock"] == 4000
     assert counts["/dcsms/mode"] == 2 and counts["/dcsms/config"] == 1
-    assert len(counts) == 14 and next(bag.glob("*.db3"))
+    # the scheduled switch is a supervisor transition too (ENGAGED Passive: user set Passive)
+    assert counts["/dcsms/supervisor/state"] == 1
+    assert len(counts) == 15 and next(bag.glob("*.db3"))
 
 
 def test_ground_from_replays_recorded_ground(bag: Path, tmp_path: Path,
