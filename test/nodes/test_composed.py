@@ -82,6 +82,9 @@ def test_composed_schedule_equals_batch(domain: int, cfg: SystemConfig, tmp_path
         np.testing.assert_array_equal(gs, bs, err_msg=topic)
         np.testing.assert_array_equal(gv, bv, err_msg=topic)
     assert _modes(got["/t13/mode"]) == _modes(ref[topics.MODE]) == ["Passive", "DFBC+FFC", "FBC"]
+    # the supervisor took each switch on the same sample (the graph adds its start state)
+    assert _modes(got["/t13/supervisor/state"])[1:] == _modes(ref[topics.SUPERVISOR_STATE]) == [
+        "ENGAGED DFBC+FFC at 0.2995 s: user set DFBC+FFC", "ENGAGED FBC at 0.6995 s: user set FBC"]
     assert not any(t.startswith(topics.NAMESPACE + "/") for t in got), sorted(got)
     print(f"\ncomposed schedule run: {g.stdout.strip().splitlines()[-1]}")
 
