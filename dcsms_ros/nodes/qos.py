@@ -25,6 +25,8 @@ same stream. What differs between the two schedules is the readers of the contro
 
 from __future__ import annotations
 
+import os
+
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH
@@ -46,13 +48,16 @@ def latched() -> QoSProfile:
 
 
 def stream_pub(lockstep: bool, durable: bool = False) -> QoSProfile:
-    """Writer of a per-sample stream (sensors, velocities, forces, applied, truth).
+    """Writer of a per-sample stream (sensors, velocities, forces, applied, truth); also the
+    profile of an observer that must see every sample it can (mode_switch, a recorder).
 
     ``durable`` (lockstep only): transient local, so a reader that matched late still gets the
     history from sample 0 (the trip checker of mode_switch must see every sample)."""
+    rt_reliable = os.environ.get("DCSMS_RT_RELIABLE") == "1"  # A/B measurement only
     return QoSProfile(depth=LOCKSTEP_WRITER_DEPTH if lockstep else REALTIME_DEPTH,
                       history=HistoryPolicy.KEEP_LAST,
-                      reliability=ReliabilityPolicy.RELIABLE,
+                      reliability=ReliabilityPolicy.RELIABLE if lockstep or rt_reliable
+                      else ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if lockstep and durable
                       else DurabilityPolicy.VOLATILE)
 
