@@ -1,31 +1,34 @@
 """QoS profiles of the graph, each chosen on purpose.
 
-Publishers are always *reliable*: a reliable writer matches both reliable and best-effort
-readers, so the recorder (reliable, to lose nothing) and the control loop can subscribe to the
-same stream. What differs between the two schedules is the readers of the control path:
+What differs between the two schedules:
 
 * **lockstep** - at most one sample per topic is in flight in the loop itself, and a lost
   sample cannot desynchronise it: the plant republishes a sample whose replies are missing
-  after ``lockstep_retry_s`` and every node answers a repeated stamp from its cache. Loop
-  readers are therefore *best-effort* keep-last :data:`LOCKSTEP_DEPTH`: on the shared-memory
-  loopback nothing is lost in practice, and each hop saves the reliable protocol's heartbeat
-  and acknack exchange, which costs about as much CPU as the sample itself (measured: rclpy
-  ping-pong 4,900 vs 3,200 round trips/s, ~half the CPU per round trip; README
-  "Performance"). The writers stay reliable and keep :data:`LOCKSTEP_WRITER_DEPTH` samples so
-  a slower reliable observer (recorder, test probe) can fall behind by that many without losing
-  one, while the loop never waits for it (keep-last writers never block).
-* **real time** - the newest sample is the only useful one; a backlog would add latency to
-  every later sample. Control-path readers are best-effort keep-last 1 (the ROS
-  ``sensor_data`` profile): a late callback processes the freshest sample and the skipped ones
-  are gone, as on a real-time controller that misses a deadline. Writers keep
-  :data:`REALTIME_DEPTH` samples for reliable observers.
+  after ``lockstep_retry_s`` and every node answers a repeated stamp from its cache. Writers
+  are *reliable* (a reliable writer matches reliable and best-effort readers) and keep
+  :data:`LOCKSTEP_WRITER_DEPTH` samples, so an observer (recorder, test probe, mode_switch's
+  trip) gets every sample; the loop waits for the slowest reader anyway. Loop readers are
+  *best-effort* keep-last :data:`LOCKSTEP_DEPTH`: on the shared-memory loopback nothing is
+  lost in practice, and each hop saves the reliable protocol's heartbeat and acknack exchange,
+  which costs about as much CPU as the sample itself (measured: rclpy ping-pong 4,900 vs 3,200
+  round trips/s, ~half the CPU per round trip; README "Performance").
+* **real time** - the newest sample is the only useful one, and the control path must never
+  wait on an observer. Writers and readers are *best-effort*: a late callback processes the
+  freshest sample and the skipped ones are gone, as on a real-time controller that misses a
+  deadline; an observer that falls behind (a recorder starved of CPU, a stopped
+  ``ros2 topic echo``) loses samples and counts them as stamp gaps (the recorder's report, the
+  run's summary line) instead of holding the writer's history and its retransmissions.
+  Measured (docs/performance.md, issue 21): fewer late samples in each of 7 alternating
+  pairs of recorded 20 s real-time runs on the shared 2-core machine (best-effort against
+  reliable: per process 4.7-5.3 % against 7.8-16.3 %; composed 1.9-4.9 % against 4.6-13.6 %;
+  composed with the recorder stopped for 5 s 6.1-12.4 % against 15.7-17.6 %). Control-path
+  readers are keep-last 1 (the ROS
+  ``sensor_data`` profile); observers keep :data:`REALTIME_DEPTH`.
 * **latched state** (``/dcsms/mode``, ``/dcsms/config``) - reliable, transient local, depth 1:
   a late joiner (``dcsms mode``, a recorder, a restarted node) gets the current value at once.
 """
 
 from __future__ import annotations
-
-import os
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -33,10 +36,9 @@ from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH
 
 #: Reader history of lockstep loop streams.
 LOCKSTEP_DEPTH = 1000
-#: Writer history of real-time streams for reliable observers: 4 s at 2 kHz, so a recorder
-#: starved of CPU for seconds on a loaded machine loses nothing (the reliability soak measured
-#: 100 samples = 50 ms losing ~7 % and 2000 losing ~2 %). Keep-last writers never block, and the
-#: control path reads best-effort keep-last 1, so this costs memory only (~1 MB per topic).
+#: History of real-time streams: an observer's reader queue (4 s at 2 kHz), so one starved of CPU
+#: for a while loses nothing while its DDS thread still runs (the writer's history is unused:
+#: best-effort writers do not retransmit).
 REALTIME_DEPTH = 8000
 
 
@@ -53,10 +55,9 @@ def stream_pub(lockstep: bool, durable: bool = False) -> QoSProfile:
 
     ``durable`` (lockstep only): transient local, so a reader that matched late still gets the
     history from sample 0 (the trip checker of mode_switch must see every sample)."""
-    rt_reliable = os.environ.get("DCSMS_RT_RELIABLE") == "1"  # A/B measurement only
     return QoSProfile(depth=LOCKSTEP_WRITER_DEPTH if lockstep else REALTIME_DEPTH,
                       history=HistoryPolicy.KEEP_LAST,
-                      reliability=ReliabilityPolicy.RELIABLE if lockstep or rt_reliable
+                      reliability=ReliabilityPolicy.RELIABLE if lockstep
                       else ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if lockstep and durable
                       else DurabilityPolicy.VOLATILE)
