@@ -28,6 +28,7 @@ rosbags
 from dcsms_ros.cdr.decode import (
     BATCH_TYPES,
     Batch,
+    BatchReader,
     JointStateReader,
     decode_batch,
     decode_rows,
@@ -67,7 +68,7 @@ from dcsms_ros.cdr.layout import (
 
 __all__ = [
     "BATCH_TYPES", "CLOCK", "HEADER", "JOINT_FIELDS", "JOINT_STATE", "NS", "STRING",
-    "SUPPORTED", "TWIST_STAMPED", "VECTOR_FIELD", "WRENCH_STAMPED", "Batch",
+    "SUPPORTED", "TWIST_STAMPED", "VECTOR_FIELD", "WRENCH_STAMPED", "Batch", "BatchReader",
     "JointStateReader", "JointStateWriter", "Layout", "StampedWriter", "decode_batch",
     "decode_rows", "decode_string", "deserialize", "encode_clock", "encode_joint_state",
     "encode_rows", "encode_stamped", "encode_string", "header_bytes", "message_layout",

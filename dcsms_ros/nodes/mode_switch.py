@@ -47,7 +47,15 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 
-from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, header_bytes, read_header, read_stamped
+from dcsms_ros.cdr import (
+    JOINT_STATE,
+    TWIST_STAMPED,
+    Batch,
+    BatchReader,
+    header_bytes,
+    read_header,
+    read_stamped,
+)
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import params_text
 from dcsms_ros.core.modes import ALL_MODES, Mode, controller_ids, enabled_controllers, parse_mode
@@ -113,7 +121,7 @@ class ModeSwitchNode(Node):
         self._switch_lock = threading.Lock()
         self._lock = threading.RLock()  # trip state: hot loop, timer, reset service
         services = ReentrantCallbackGroup()
-        self.pub_mode = self.create_publisher(String, topics.LOCAL.mode, qos.latched())
+        self.pub_mode = self.create_publisher(String, topics.LOCAL.mode, qos.events())
         self.pub_config = self.create_publisher(String, topics.LOCAL.config, qos.latched())
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         self.ctl = ControllerClients(self, self.controllers, services)
@@ -130,9 +138,11 @@ class ModeSwitchNode(Node):
         self.feed = TripFeed(TripChecker(cfg.control, cfg.plant.rate_hz, n, cfg.plant.dof),
                              cfg.plant.rate_hz)
         self.pub_state = self.create_publisher(String, topics.LOCAL.supervisor_state,
-                                               qos.latched())
+                                               qos.events())
         self.sfeed = self._supervised(cfg) if self.trip_enabled else None
-        self._forces = JointStateReader("effort")
+        self._forces = BatchReader(JOINT_STATE)
+        self._twists = [BatchReader(TWIST_STAMPED) for _ in range(n + 1)]  # stages, ground
+        self._cols = [2] if cfg.plant.dof == 1 else list(range(6))  # z, or the whole twist
         self._hot = HotPath(self, self._lock)
         self._trip_subs: list[Any] = []
         self._asked = -1  # lockstep: the checkpoint stamp the plant waits for
@@ -297,20 +307,26 @@ class ModeSwitchNode(Node):
 
     # -- trip --------------------------------------------------------------------------------
     def _drain(self) -> None:
+        if self.sfeed is None:
+            for i, sub in enumerate(self._trip_subs):
+                HotPath.drain(sub, partial(self._feed_trip, i))
+            return
+        # supervised: each queue decoded as one batch (4 streams per sample; ~1 us a message
+        # against ~2.5 us one by one)
         for i, sub in enumerate(self._trip_subs):
-            HotPath.drain(sub, partial(self._feed_trip, i))
-        if self.sfeed is not None and self._trip_subs:
-            HotPath.drain(self._ground_sub, self._feed_ground)
-            HotPath.drain(self._force_sub, self._feed_force)
+            b = self._take(sub, self._twists[i])
+            for s, v in zip(b.stamp_ns.tolist(), b.fields["twist"][:, self._cols], strict=True):
+                self.feed.add(i, s, v)
+        b = self._take(self._ground_sub, self._twists[-1])
+        self.sfeed.add_grounds(b.stamp_ns, b.fields["twist"][:, self._cols])
+        b = self._take(self._force_sub, self._forces)
+        self.sfeed.add_forces(b.stamp_ns, b.fields["effort"])
 
-    def _feed_ground(self, buf: bytes) -> None:
-        assert self.sfeed is not None
-        self.sfeed.add_ground(*read_stamped(buf, TWIST_STAMPED, self.feed.checker.dof))
-
-    def _feed_force(self, buf: bytes) -> None:
-        assert self.sfeed is not None
-        stamp, _, f = self._forces.read(buf)
-        self.sfeed.add_force(stamp, f)
+    @staticmethod
+    def _take(sub: Any, reader: BatchReader) -> Batch:
+        bufs: list[bytes] = []
+        HotPath.drain(sub, bufs.append)
+        return reader.read(bufs)
 
     def _feed_trip(self, i: int, buf: bytes) -> None:
         self.feed.add(i, *read_stamped(buf, TWIST_STAMPED, self.feed.checker.dof))

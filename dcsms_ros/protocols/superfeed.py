@@ -59,6 +59,16 @@ class SupervisedFeed:
             self._newest_force = stamp_ns
             self._force.append((stamp_ns, f))
 
+    def add_grounds(self, stamps: Array, v: Array) -> None:
+        """Ground twists of several samples: stamps (K,) ns, ``v`` (K, dof) m/s."""
+        for s, row in zip(stamps.tolist(), v, strict=True):
+            self.add_ground(s, row)
+
+    def add_forces(self, stamps: Array, f: Array) -> None:
+        """Applied forces of several samples: stamps (K,) ns, ``f`` (K, n_actuators) N."""
+        for s, row in zip(stamps.tolist(), f, strict=True):
+            self.add_force(s, row)
+
     def complete(self, through_ns: int) -> bool:
         """Lockstep: every stream holds what the checkpoint ending at ``through_ns`` needs."""
         k = self.feed.index(through_ns)
