@@ -31,13 +31,15 @@ def _burst(seconds: float) -> tuple[Any, Any]:
 
 
 def _node_cost(cfg: Any, res: Any, supervised: bool) -> tuple[float, int]:
-    """Seconds per sample of mode_switch's lockstep work; transitions seen."""
+    """Seconds per sample of mode_switch's lockstep work; transitions seen. As the node does:
+    each checkpoint's queues drained and decoded as batches (:class:`cdr.BatchReader`), then
+    the trip alone (:meth:`TripFeed.judge`) or the supervisor (:meth:`SupervisedFeed.step`)."""
     from dcsms_ros.cdr import (
+        JOINT_STATE,
         TWIST_STAMPED,
-        JointStateReader,
+        BatchReader,
         JointStateWriter,
         StampedWriter,
-        read_stamped,
     )
     from dcsms_ros.core.modes import Mode
     from dcsms_ros.core.supervision import make_supervisor
@@ -51,30 +53,33 @@ def _node_cost(cfg: Any, res: Any, supervised: bool) -> tuple[float, int]:
     tw = [StampedWriter(TWIST_STAMPED, b, c.dof) for b in ("ground", "stage1", "stage2")]
     jw = JointStateWriter(res.actuator_names, "effort")
     stamps = [int(round(k * 1e9 / c.rate_hz)) for k in range(k_all)]
-    vel = [[tw[b].encode(s, res.velocity[k, b]) for b in range(n + 1)]
-           for k, s in enumerate(stamps)]
+    vel = [[tw[b].encode(s, res.velocity[k, b]) for k, s in enumerate(stamps)]
+           for b in range(n + 1)]
     forces = [jw.encode(s, res.applied[k]) for k, s in enumerate(stamps)]
     feed = TripFeed(TripChecker(cfg.control, c.rate_hz, n, c.dof), c.rate_hz)
     sup = SupervisedFeed(feed, CheckpointFeed(cfg), make_supervisor(cfg, Mode.DFBC_FFC))
     sup.sup.band_gain.get(Mode.DFBC_FFC)  # the model's gains: computed once, at start
     sup.sup.band_gain.get(Mode.FBC)
-    reader = JointStateReader("effort")
+    twists = [BatchReader(TWIST_STAMPED) for _ in range(n + 1)]
+    joints = BatchReader(JOINT_STATE)
     every = feed.checker.every
     seen = 0
     t0 = time.perf_counter()
-    for k in range(k_all):
+    for k0 in range(0, k_all - every + 1, every):
+        k1 = k0 + every
         for i in range(n):
-            feed.add(i, *read_stamped(vel[k][i + 1], TWIST_STAMPED, c.dof))
+            b = twists[i + 1].read(vel[i + 1][k0:k1])
+            for s, v in zip(b.stamp_ns.tolist(), b.fields["twist"][:, [2]], strict=True):
+                feed.add(i, s, v)
         if supervised:
-            sup.add_ground(*read_stamped(vel[k][0], TWIST_STAMPED, c.dof))
-        if (k + 1) % every == 0:
-            if supervised:
-                seen += len(sup.step(stamps[k]))
-            else:
-                feed.judge(stamps[k])
-        if supervised:
-            stamp, _, f = reader.read(forces[k])
-            sup.add_force(stamp, f)
+            b = twists[0].read(vel[0][k0:k1])
+            sup.add_grounds(b.stamp_ns, b.fields["twist"][:, [2]])
+            # the plant's forces of the block's samples before its last (lockstep)
+            b = joints.read(forces[max(k0 - 1, 0):k1 - 1])
+            sup.add_forces(b.stamp_ns, b.fields["effort"])
+            seen += len(sup.step(stamps[k1 - 1]))
+        else:
+            feed.judge(stamps[k1 - 1])
     return (time.perf_counter() - t0) / k_all, seen
 
 
