@@ -44,9 +44,9 @@ from dcsms_ros.errors import ConfigError
 from dcsms_ros.protocols import gate
 
 #: Prefixes of run-time tunable names; everything else is fixed once a node runs.
-MUTABLE_PREFIXES = ("feedback.", "feedforward.", "control.")
+MUTABLE_PREFIXES = ("feedback.", "feedforward.", "control.", "supervisor.")
 #: Prefixes that are not structure (declared only by the nodes that select them).
-_NON_STRUCTURE = ("feedback.", "feedforward.", "control.", "disturbance.")
+_NON_STRUCTURE = ("feedback.", "feedforward.", "control.", "disturbance.", "supervisor.")
 
 _TYPES = {
     "float": (ParameterType.PARAMETER_DOUBLE, Parameter.Type.DOUBLE),

@@ -11,11 +11,13 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from node_helpers import overrides
 from rclpy.executors import MultiThreadedExecutor
+from rclpy.parameter import Parameter
 from rosmsgs import twist_msg
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from dcsms_ros.core import topics
+from dcsms_ros.core.modes import Mode
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
 from dcsms_ros.nodes.mode_switch import ModeSwitchNode
@@ -140,5 +142,23 @@ def test_restarted_controller_is_given_the_current_mode(ctx, cfg):
         pub.publish(report)
         assert g.wait(lambda: g.fb[0].loop.enabled, timeout=5.0), "restart not noticed"
         assert g.ms.mode.label == "DFBC" and g.fb[1].loop.enabled
+    finally:
+        g.close()
+
+
+def test_supervisor_parameters_change_at_run_time(ctx, cfg):
+    """``ros2 param set`` on mode_switch: a supervisor parameter applies to the running
+    supervisor (from its next checkpoint); an out-of-range one is rejected with the reason."""
+    g = Graph(ctx, cfg)
+    try:
+        assert g.ms.sfeed is not None and g.ms.sfeed.sup.s.recover_after_s == 5.0
+        ok = g.ms.set_parameters([Parameter("supervisor.recover_after_s", value=9.0),
+                                  Parameter("supervisor.ride_mode", value="passive")])
+        assert all(r.successful for r in ok), ok
+        assert g.ms.sfeed.sup.s.recover_after_s == 9.0
+        assert g.ms.sfeed.sup.s.ride_mode is Mode.PASSIVE
+        bad = g.ms.set_parameters([Parameter("supervisor.hold_s", value=-1.0)])
+        assert not bad[0].successful and "supervisor.hold_s" in bad[0].reason, bad
+        assert g.ms.sfeed.sup.s.hold_s == 2.0
     finally:
         g.close()
