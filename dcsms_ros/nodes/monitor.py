@@ -163,7 +163,10 @@ class GraphMonitor:
         ms = self.diag.get("mode_switch", {})
         faults = sum(int(p.get(k, "0")) for k in ("lockstep_timeouts", "stale_events",
                                                    "nonfinite_inputs", "overruns"))
-        trip = "  TRIPPED" if ms.get("tripped") == "True" else ""
+        state = ms.get("supervisor", "off")
+        # the supervisor's state when it is not simply running the user's mode
+        trip = (f"  {state}" if state not in ("off", "ENGAGED") else
+                "  TRIPPED" if ms.get("tripped") == "True" else "")
         degraded = self.messages.get(PLANT, "")
         extra = f"  [{degraded}]" if degraded.startswith("degraded") else ""
         if p.get("finished") == "True":  # the plant waits for its readers (the recorder)
