@@ -17,6 +17,15 @@ and keeps the rest (table forces, sensor noise, other floor axes). An error of `
 bias of a Welch estimate on a peak narrower than a bin) only enters multiplied by the small
 difference ``S_common - S_ground``, so it is of second order. The ratio of two ``P_cv`` is
 the normalised value, as the paper defines it.
+
+Since ``|H1|**2 S_ground = coherence * S_top`` bin by bin, ``P_cv`` is also
+``sum_band w_i (|H1_i|**2 S_common_i + (1 - coherence_i) S_top_i)``: the floor-driven part under
+the common floor plus the part the floor does not explain (table forces, sensor noise).
+
+Its interval: the plain band power's degrees of freedom (:func:`.uncertainty.band_dof`,
+calibrated against the batch engine) divided by :func:`variance_ratio`, the reduction of the
+relative variance the correction achieves, measured on the record itself over its Welch
+segments.
 """
 
 from __future__ import annotations
@@ -24,9 +33,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from scipy import signal
 
 from dcsms_ros.analysis import estimators as est
 from dcsms_ros.analysis.modetable import HALF_WIDTH_OCT
+
+
+def _band(f: np.ndarray, f_r: float) -> np.ndarray:
+    """Width (Hz) of each bin of ``f`` inside one-third octave around ``f_r`` (Hz), shape (F,)."""
+    band = np.array([[f_r, f_r * 2 ** -HALF_WIDTH_OCT, f_r * 2 ** HALF_WIDTH_OCT]])
+    return np.asarray(est.band_weights(f, band)[0])
 
 
 def band_power_cv(f: np.ndarray, p_top: np.ndarray, p_ground: np.ndarray, h1: np.ndarray,
@@ -46,9 +62,56 @@ def band_power_cv(f: np.ndarray, p_top: np.ndarray, p_ground: np.ndarray, h1: np
     f_r : float
         Band centre (Hz).
     """
-    band = np.array([[f_r, f_r * 2 ** -HALF_WIDTH_OCT, f_r * 2 ** HALF_WIDTH_OCT]])
-    w = est.band_weights(f, band)[0]
+    w = _band(f, f_r)
     return float(w @ p_top + w @ (np.abs(h1) ** 2 * (p_common - p_ground)))
+
+
+def segment_psds(x: np.ndarray, fs: float, nperseg: int) -> np.ndarray:
+    """The periodograms :func:`.estimators.psd` averages (Hann, half overlap, mean removed,
+    one-sided density, unit^2/Hz) of ``x`` (N,) sampled at ``fs`` Hz, shape (F, K)."""
+    _, _, sxx = signal.spectrogram(np.asarray(x, dtype=np.float64), fs, window="hann",
+                                   nperseg=nperseg, noverlap=nperseg // 2, detrend="constant",
+                                   scaling="density", mode="psd")
+    return np.asarray(sxx)
+
+
+def variance_ratio(f: np.ndarray, top: np.ndarray, ground: np.ndarray, h1: np.ndarray,
+                   p_common: np.ndarray, f_r: float, fs: float, nperseg: int) -> float:
+    """Relative variance of the corrected band power over that of the plain one (dimensionless),
+    from the record's Welch segments.
+
+    Each Welch segment k gives a plain band power ``q_k`` and a corrected one
+    ``q_k + sum_band w |H1|**2 (S_common - S_ground,k)``; their means are the segment's
+    ``P_top`` and ``P_cv``. The ratio of the two sequences' relative variances is the factor by
+    which the correction shrinks the relative variance of the mean: neighbouring Welch segments
+    overlap and a sharp resonance correlates them further, but both sequences share that
+    correlation, which cancels in the ratio. 1 where it cannot be measured (fewer than three
+    segments, a silent band).
+
+    Parameters
+    ----------
+    f : ndarray, shape (F,)
+        The Welch grid of ``nperseg`` samples at ``fs`` (Hz).
+    top, ground : ndarray, shape (N,)
+        The segment's top-stage and floor velocities (m/s).
+    h1 : ndarray of complex, shape (F,)
+        Its floor -> top H1 (dimensionless).
+    p_common : ndarray, shape (F,)
+        The common floor PSD ((m/s)^2/Hz).
+    f_r : float
+        Band centre (Hz).
+    fs : float
+        Sample rate (Hz).
+    nperseg : int
+        Welch segment length (samples).
+    """
+    w = _band(f, f_r)
+    plain = w @ segment_psds(top, fs, nperseg)
+    corr = (w * np.abs(h1) ** 2) @ (p_common[:, None] - segment_psds(ground, fs, nperseg))
+    cv = plain + corr
+    if plain.size < 3 or not (np.mean(plain) > 0 and np.mean(cv) > 0 and np.var(plain) > 0):
+        return 1.0
+    return float((np.var(cv) / np.mean(cv) ** 2) / (np.var(plain) / np.mean(plain) ** 2))
 
 
 def normalized_cv(segments: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
@@ -72,4 +135,4 @@ def normalized_cv(segments: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
     return [float(np.sqrt(max(p, 0.0) / base)) if base > 0 else float("nan") for p in powers]
 
 
-__all__ = ["band_power_cv", "normalized_cv"]
+__all__ = ["band_power_cv", "normalized_cv", "segment_psds", "variance_ratio"]

@@ -19,7 +19,8 @@ class Summary:
     segments : list of dict
         One per analysed segment (see ``summary.json``: ``mode``, ``segment`` (the mode, and
         the excitation when the segment is excited), ``axes.<a>.normalized``,
-        ``axes.<a>.attenuation_db``, ``axes.<a>.normalized_ground`` (:mod:`.groundnorm`),
+        ``axes.<a>.attenuation_db``, ``axes.<a>.normalized_ci``, ``axes.<a>.estimator``
+        (:mod:`.table4`), ``axes.<a>.normalized_plain``,
         ``vc``, ``estimates`` (what the segment can estimate, with the usable bins),
         ``model`` (the loop model against every usable bin), ``forces`` ...).
     reference : str
