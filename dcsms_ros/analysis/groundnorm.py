@@ -66,54 +66,6 @@ def band_power_cv(f: np.ndarray, p_top: np.ndarray, p_ground: np.ndarray, h1: np
     return float(w @ p_top + w @ (np.abs(h1) ** 2 * (p_common - p_ground)))
 
 
-def segment_psds(x: np.ndarray, fs: float, nperseg: int) -> np.ndarray:
-    """The periodograms :func:`.estimators.psd` averages (Hann, half overlap, mean removed,
-    one-sided density, unit^2/Hz) of ``x`` (N,) sampled at ``fs`` Hz, shape (F, K)."""
-    _, _, sxx = signal.spectrogram(np.asarray(x, dtype=np.float64), fs, window="hann",
-                                   nperseg=nperseg, noverlap=nperseg // 2, detrend="constant",
-                                   scaling="density", mode="psd")
-    return np.asarray(sxx)
-
-
-def variance_ratio(f: np.ndarray, top: np.ndarray, ground: np.ndarray, h1: np.ndarray,
-                   p_common: np.ndarray, f_r: float, fs: float, nperseg: int) -> float:
-    """Relative variance of the corrected band power over that of the plain one (dimensionless),
-    from the record's Welch segments.
-
-    Each Welch segment k gives a plain band power ``q_k`` and a corrected one
-    ``q_k + sum_band w |H1|**2 (S_common - S_ground,k)``; their means are the segment's
-    ``P_top`` and ``P_cv``. The ratio of the two sequences' relative variances is the factor by
-    which the correction shrinks the relative variance of the mean: neighbouring Welch segments
-    overlap and a sharp resonance correlates them further, but both sequences share that
-    correlation, which cancels in the ratio. 1 where it cannot be measured (fewer than three
-    segments, a silent band).
-
-    Parameters
-    ----------
-    f : ndarray, shape (F,)
-        The Welch grid of ``nperseg`` samples at ``fs`` (Hz).
-    top, ground : ndarray, shape (N,)
-        The segment's top-stage and floor velocities (m/s).
-    h1 : ndarray of complex, shape (F,)
-        Its floor -> top H1 (dimensionless).
-    p_common : ndarray, shape (F,)
-        The common floor PSD ((m/s)^2/Hz).
-    f_r : float
-        Band centre (Hz).
-    fs : float
-        Sample rate (Hz).
-    nperseg : int
-        Welch segment length (samples).
-    """
-    w = _band(f, f_r)
-    plain = w @ segment_psds(top, fs, nperseg)
-    corr = (w * np.abs(h1) ** 2) @ (p_common[:, None] - segment_psds(ground, fs, nperseg))
-    cv = plain + corr
-    if plain.size < 3 or not (np.mean(plain) > 0 and np.mean(cv) > 0 and np.var(plain) > 0):
-        return 1.0
-    return float((np.var(cv) / np.mean(cv) ** 2) / (np.var(plain) / np.mean(plain) ** 2))
-
-
 def normalized_cv(segments: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
                   f: np.ndarray, f_r: float, reference: int = 0) -> list[float]:
     """Ground-corrected normalised values (dimensionless) of several segments.
@@ -135,4 +87,66 @@ def normalized_cv(segments: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
     return [float(np.sqrt(max(p, 0.0) / base)) if base > 0 else float("nan") for p in powers]
 
 
-__all__ = ["band_power_cv", "normalized_cv", "segment_psds", "variance_ratio"]
+def segment_spectra(x: np.ndarray, fs: float, nperseg: int) -> np.ndarray:
+    """The Fourier transforms of the Welch segments :func:`.estimators.psd` averages (Hann,
+    half overlap, mean removed) of ``x`` (N,) sampled at ``fs`` Hz, scaled so that
+    ``|X|**2`` is the segment's one-sided density (unit^2/Hz), shape (F, K)."""
+    _, _, z = signal.stft(np.asarray(x, dtype=np.float64), fs, window="hann", nperseg=nperseg,
+                          noverlap=nperseg // 2, detrend="constant", boundary=None,
+                          padded=False, scaling="psd")
+    scale = np.full(z.shape[0], np.sqrt(2.0))
+    scale[0] = 1.0
+    if nperseg % 2 == 0:
+        scale[-1] = 1.0
+    return np.asarray(z * scale[:, None])
+
+
+def variance_ratio(f: np.ndarray, top: np.ndarray, ground: np.ndarray, p_common: np.ndarray,
+                   f_r: float, fs: float, nperseg: int) -> float:
+    """Relative variance of the corrected band power over that of the plain one (dimensionless),
+    from the record's Welch segments.
+
+    Each Welch segment k gives a plain band power ``q_k`` and a corrected one
+    ``q_k + sum_band w |H1_(k)|**2 (S_common - S_ground,k)``; their means estimate the
+    segment's ``P_top`` and ``P_cv``. ``H1_(k)`` is measured without segment k: with it, the
+    correction would be fitted to the very fluctuations it is judged on and the reduction
+    overstated (by about one part in the number of segments). The ratio of the two sequences'
+    relative variances is the factor by which the correction shrinks the relative variance of
+    the mean: neighbouring Welch segments overlap and a sharp resonance correlates them further,
+    but both sequences share that correlation, which cancels in the ratio. 1 where it cannot be
+    measured (fewer than three segments, a silent band).
+
+    Parameters
+    ----------
+    f : ndarray, shape (F,)
+        The Welch grid of ``nperseg`` samples at ``fs`` (Hz).
+    top, ground : ndarray, shape (N,)
+        The segment's top-stage and floor velocities (m/s).
+    p_common : ndarray, shape (F,)
+        The common floor PSD ((m/s)^2/Hz).
+    f_r : float
+        Band centre (Hz).
+    fs : float
+        Sample rate (Hz).
+    nperseg : int
+        Welch segment length (samples).
+    """
+    w = _band(f, f_r)
+    sel = w > 0
+    y = segment_spectra(top, fs, nperseg)[sel]
+    g = segment_spectra(ground, fs, nperseg)[sel]
+    if y.shape[1] < 3:
+        return 1.0
+    syy, sgg, sgy = np.abs(y) ** 2, np.abs(g) ** 2, np.conj(g) * y
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h1 = (sgy.sum(axis=1, keepdims=True) - sgy) / (sgg.sum(axis=1, keepdims=True) - sgg)
+    h1 = np.nan_to_num(h1)
+    plain = w[sel] @ syy
+    cv = plain + w[sel] @ (np.abs(h1) ** 2 * (p_common[sel, None] - sgg))
+    if not (np.mean(plain) > 0 and np.mean(cv) > 0 and np.var(plain) > 0):
+        return 1.0
+    return float((np.var(cv) / np.mean(cv) ** 2) / (np.var(plain) / np.mean(plain) ** 2))
+
+
+__all__ = ["band_power_cv", "normalized_cv", "segment_spectra",
+           "variance_ratio"]

@@ -71,8 +71,8 @@ def _ground_corrected(results: list[dict[str, Any]], ref: dict[str, Any], axis: 
     k = results.index(ref)
     values = groundnorm.normalized_cv([(x["psd"], x["psd_bodies"]["ground"], x["tfs"][-1].h)
                                        for x in arrs], grid, f_r, k)
-    ratios = [groundnorm.variance_ratio(grid, x["top"], x["ground"], x["tfs"][-1].h, common,
-                                        f_r, s, n) for x, s, n in zip(arrs, fs, nper, strict=True)]
+    ratios = [groundnorm.variance_ratio(grid, x["top"], x["ground"], common, f_r, s, n)
+              for x, s, n in zip(arrs, fs, nper, strict=True)]
     for r, norm, ratio in zip(results, values, ratios, strict=True):
         db = modetable.normalize(norm, 1.0)[1]
         ci = (norm, norm) if r is ref else uncertainty.ratio_interval(
