@@ -10,7 +10,6 @@ import numpy as np
 from dcsms_ros.analysis import modetable, plots
 from dcsms_ros.analysis.paper import CITATION, within
 from dcsms_ros.analysis.summary import Summary, dumps
-from dcsms_ros.analysis.table4 import BAND_RMS, GROUND_CV
 from dcsms_ros.analysis.tables import write_spectra
 from dcsms_ros.errors import DcsmsError
 
@@ -116,13 +115,6 @@ def markdown(summary: Summary, figures: list[str]) -> str:
     return "\n".join(lines)
 
 
-#: How each Table-4 estimator (``axes.<a>.estimator``, :mod:`.table4`) is named in the report.
-ESTIMATORS = {
-    GROUND_CV: "band RMS of the top stage corrected to the mean recorded floor spectrum "
-                 "(control variate on the floor; analysis/groundnorm.py)",
-    BAND_RMS: "band RMS of the top stage (no floor recorded on a common grid)",
-}
-
 
 def _fmt(x: Any, spec: str) -> str:
     return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, spec)
@@ -145,10 +137,9 @@ def _md_table4(s: Summary) -> str:
                      f"growing, model stable ({grow})" if grow else
                      "steady" if st.get("checked", True) else "open loop")
         rows.append(f"| {seg['segment']} | " + " | ".join(cells) + " |")
-    kinds = {seg["axes"][a].get("estimator") for seg in s.segments for a in s.axes} - {None}
-    if kinds:
-        rows += ["", "Values: " + "; ".join(ESTIMATORS.get(k, k) for k in sorted(kinds))
-                 + " (docs/tem.md; the plain ratio is `normalized_plain` in summary.json)."]
+    note = modetable.estimator_note(s.segments, s.axes)
+    if note:
+        rows += ["", note]
     return "\n".join(rows)
 
 

@@ -56,10 +56,11 @@ class Summary:
         })
 
     def table(self) -> str:
-        """The mode table as text (see :func:`modetable.format_table`); an excited segment is
-        named with its excitation."""
+        """The mode table as text (see :func:`modetable.format_table`) and the sentence naming
+        its estimator; an excited segment is named with its excitation."""
         rows = [{**s, "mode": s.get("segment", s["mode"])} for s in self.segments]
-        return modetable.format_table(rows, self.axes)
+        note = modetable.estimator_note(rows, self.axes)
+        return modetable.format_table(rows, self.axes) + (f"\n{note}" if note else "")
 
 
 def dumps(summary: Summary) -> str:

@@ -15,9 +15,8 @@ import numpy as np
 from dcsms_ros.analysis import groundnorm, modetable, uncertainty
 from dcsms_ros.analysis.summary import Summary
 
-#: ``estimator`` values in the JSON.
-GROUND_CV = "ground_cv"
-BAND_RMS = "band_rms"
+GROUND_CV = modetable.GROUND_CV
+BAND_RMS = modetable.BAND_RMS
 
 
 def table4(results: list[dict[str, Any]], ref_label: str, summary: Summary) -> None:
