@@ -69,6 +69,25 @@ def resonance_band_dof(x: np.ndarray, fs: float, f_r: float) -> float:
     return band_dof(x, fs, f_r * 2.0 ** -HALF_WIDTH_OCT, f_r * 2.0 ** HALF_WIDTH_OCT)
 
 
+#: ``axes.<a>.estimator`` of a normalised value (:mod:`.table4`), and how the tables name it.
+GROUND_CV = "ground_cv"
+BAND_RMS = "band_rms"
+ESTIMATORS = {
+    GROUND_CV: "band RMS of the top stage corrected to the mean recorded floor spectrum "
+               "(control variate on the floor; analysis/groundnorm.py)",
+    BAND_RMS: "band RMS of the top stage (no floor recorded on a common grid)",
+}
+
+
+def estimator_note(rows: Sequence[dict[str, Any]], axes: Sequence[str]) -> str:
+    """One sentence naming the estimators of the rows' values (empty when none is named)."""
+    kinds = {r["axes"].get(a, {}).get("estimator") for r in rows for a in axes} - {None}
+    if not kinds:
+        return ""
+    return ("Values: " + "; ".join(ESTIMATORS.get(k, k) for k in sorted(kinds))
+            + " (docs/tem.md; the plain ratio is `normalized_plain` in summary.json).")
+
+
 def normalize(value: float, reference: float) -> tuple[float, float]:
     """``(normalized, attenuation_db)`` of a band RMS against the reference's."""
     if not reference > 0:
@@ -114,5 +133,18 @@ def _num(x: float | None, fmt: str) -> str:
     return "-" if x is None or not np.isfinite(x) else format(x, fmt)
 
 
-__all__ = ["HALF_WIDTH_OCT", "RESONANCE_RANGE_HZ", "format_table", "interval", "normalize",
-           "refine_peak", "resonance_band_dof", "resonance_band_rms", "resonance_frequency"]
+__all__ = [
+    "BAND_RMS",
+    "ESTIMATORS",
+    "GROUND_CV",
+    "HALF_WIDTH_OCT",
+    "RESONANCE_RANGE_HZ",
+    "estimator_note",
+    "format_table",
+    "interval",
+    "normalize",
+    "refine_peak",
+    "resonance_band_dof",
+    "resonance_band_rms",
+    "resonance_frequency",
+]

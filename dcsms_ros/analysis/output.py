@@ -117,6 +117,7 @@ def markdown(summary: Summary, figures: list[str]) -> str:
     return "\n".join(lines)
 
 
+
 def _fmt(x: Any, spec: str) -> str:
     return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, spec)
 
@@ -138,6 +139,9 @@ def _md_table4(s: Summary) -> str:
                      f"growing, model stable ({grow})" if grow else
                      "steady" if st.get("checked", True) else "open loop")
         rows.append(f"| {seg['segment']} | " + " | ".join(cells) + " |")
+    note = modetable.estimator_note(s.segments, s.axes)
+    if note:
+        rows += ["", note]
     return "\n".join(rows)
 
 

@@ -239,6 +239,8 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
         js["axes"][a] = ax
         arrays[a] = {"f": f, "psd": p_top, "tfs": trans.tfs, "estimates": ests,
                      "psd_bodies": psds, "top": al.bodies[top][:, j]}
+        if ground is not None:
+            arrays[a]["ground"] = ground
     js["forces"] = _forces(data, seg, cfg)
     js["stability"] = (_stability(al.bodies, stages, axes, al.fs, summary, where,
                                   _model_stability(cfg, seg, verdicts))

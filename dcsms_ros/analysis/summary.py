@@ -20,7 +20,8 @@ class Summary:
     segments : list of dict
         One per analysed segment (see ``summary.json``: ``mode``, ``segment`` (the mode, and
         the excitation when the segment is excited), ``axes.<a>.normalized``,
-        ``axes.<a>.attenuation_db``, ``axes.<a>.normalized_ground`` (:mod:`.groundnorm`),
+        ``axes.<a>.attenuation_db``, ``axes.<a>.normalized_ci``, ``axes.<a>.estimator``
+        (:mod:`.table4`), ``axes.<a>.normalized_plain``,
         ``vc``, ``estimates`` (what the segment can estimate, with the usable bins),
         ``model`` (the loop model against every usable bin), ``forces`` ...).
     reference : str
@@ -63,10 +64,11 @@ class Summary:
         })
 
     def table(self) -> str:
-        """The mode table as text (see :func:`modetable.format_table`); an excited segment is
-        named with its excitation."""
+        """The mode table as text (see :func:`modetable.format_table`) and the sentence naming
+        its estimator; an excited segment is named with its excitation."""
         rows = [{**s, "mode": s.get("segment", s["mode"])} for s in self.segments]
-        return modetable.format_table(rows, self.axes)
+        note = modetable.estimator_note(rows, self.axes)
+        return modetable.format_table(rows, self.axes) + (f"\n{note}" if note else "")
 
 
 def dumps(summary: Summary) -> str:

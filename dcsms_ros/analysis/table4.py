@@ -1,6 +1,10 @@
-"""Table 4 of analysed segments: each segment's band RMS at the reference resonance normalised to
-the reference segment's, with its 95 % interval (:mod:`.uncertainty`) and the ground-corrected
-value (:mod:`.groundnorm`), written into the segments' JSON."""
+"""Table 4 of analysed segments: each segment's band power at the reference resonance normalised
+to the reference segment's, with its 95 % interval, written into the segments' JSON.
+
+``normalized`` is the ground-corrected value (:mod:`.groundnorm`) when every compared segment
+recorded the floor on one frequency grid, else the plain band-RMS ratio; ``estimator`` says
+which. The plain ratio is always kept as ``normalized_plain`` / ``normalized_plain_ci``.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +14,9 @@ import numpy as np
 
 from dcsms_ros.analysis import groundnorm, modetable, uncertainty
 from dcsms_ros.analysis.summary import Summary
+
+GROUND_CV = modetable.GROUND_CV
+BAND_RMS = modetable.BAND_RMS
 
 
 def table4(results: list[dict[str, Any]], ref_label: str, summary: Summary) -> None:
@@ -42,24 +49,36 @@ def table4(results: list[dict[str, Any]], ref_label: str, summary: Summary) -> N
                 norm, dof[id(r)], dof[id(ref)])
             r["json"]["axes"][a].update(resonance_band_rms_mps=val, normalized=norm,
                                         normalized_ci=list(ci), band_dof=dof[id(r)],
-                                        attenuation_db=db)
-        _ground_corrected(results, ref, a, f_r)
+                                        attenuation_db=db, normalized_plain=norm,
+                                        normalized_plain_ci=list(ci), estimator=BAND_RMS)
+        _ground_corrected(results, ref, a, f_r, dof)
 
 
 def _ground_corrected(results: list[dict[str, Any]], ref: dict[str, Any], axis: str,
-                      f_r: float) -> None:
-    """``normalized_ground`` (:mod:`.groundnorm`) of every segment on ``axis`` that recorded
-    the floor, on the reference's frequency grid; absent otherwise."""
+                      f_r: float, dof: dict[int, float]) -> None:
+    """Make the ground-corrected value (:mod:`.groundnorm`) ``normalized`` on ``axis`` when
+    every segment recorded the floor on the reference's frequency grid; its interval divides
+    each segment's degrees of freedom by its :func:`.groundnorm.variance_ratio`."""
     grid = ref["arrays"][axis]["f"]
-    usable = [r for r in results if "ground" in r["arrays"][axis]["psd_bodies"]
-              and r["arrays"][axis]["tfs"] and r["arrays"][axis]["f"].shape == grid.shape]
-    if ref not in usable:
+    if not all("ground" in r["arrays"][axis] and r["arrays"][axis]["tfs"]
+               and r["arrays"][axis]["f"].shape == grid.shape for r in results):
         return
-    segs = [(r["arrays"][axis]["psd"], r["arrays"][axis]["psd_bodies"]["ground"],
-             r["arrays"][axis]["tfs"][-1].h) for r in usable]
-    values = groundnorm.normalized_cv(segs, grid, f_r, usable.index(ref))
-    for r, v in zip(usable, values, strict=True):
-        r["json"]["axes"][axis]["normalized_ground"] = v
+    arrs = [r["arrays"][axis] for r in results]
+    common = np.mean([x["psd_bodies"]["ground"] for x in arrs], axis=0)
+    fs = [r["json"]["fs_hz"] for r in results]
+    nper = [r["json"]["nperseg"] for r in results]
+    k = results.index(ref)
+    values = groundnorm.normalized_cv([(x["psd"], x["psd_bodies"]["ground"], x["tfs"][-1].h)
+                                       for x in arrs], grid, f_r, k)
+    ratios = [groundnorm.variance_ratio(grid, x["top"], x["ground"], common, f_r, s, n)
+              for x, s, n in zip(arrs, fs, nper, strict=True)]
+    for r, norm, ratio in zip(results, values, ratios, strict=True):
+        db = modetable.normalize(norm, 1.0)[1]
+        ci = (norm, norm) if r is ref else uncertainty.ratio_interval(
+            norm, dof[id(r)] / ratio, dof[id(ref)] / ratios[k])
+        r["json"]["axes"][axis].update(normalized=norm, normalized_ci=list(ci),
+                                       attenuation_db=db, variance_ratio=ratio,
+                                       estimator=GROUND_CV)
 
 
-__all__ = ["table4"]
+__all__ = ["BAND_RMS", "GROUND_CV", "table4"]

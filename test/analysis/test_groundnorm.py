@@ -8,10 +8,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
+from scipy import signal
 
 from dcsms_ros.analysis import estimators as est
 from dcsms_ros.analysis import modetable
-from dcsms_ros.analysis.groundnorm import band_power_cv, normalized_cv
+from dcsms_ros.analysis.groundnorm import (
+    band_power_cv,
+    normalized_cv,
+    segment_spectra,
+    variance_ratio,
+)
 from dcsms_ros.analysis.predict import predict_table4
 from dcsms_ros.core.config import load_config
 from dcsms_ros.core.engine import simulate
@@ -54,3 +60,52 @@ def test_lower_scatter_and_the_models_value_over_seeds() -> None:
     diff = cv_a - plain_a
     assert abs(diff.mean()) < 3 * diff.std(ddof=1) / np.sqrt(diff.size)
     assert_allclose(np.median(cv_a), model.values["DFBC"]["z"], rtol=0.2)
+
+
+def _records(fs: float, n: int, fraction: float, rng: np.random.Generator
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """(floor, top) of ``n`` samples: unit white floor velocity; the top is a 3.8 Hz resonance
+    (half-power bandwidth 0.5 Hz) driven by the floor, plus the same resonance driven by an
+    independent source, which holds ``1 - fraction`` of the band power."""
+    b, a = signal.butter(1, [3.55, 4.05], btype="bandpass", fs=fs)
+    g = rng.standard_normal(n + 2000)
+    e = rng.standard_normal(n + 2000) * np.sqrt((1.0 - fraction) / max(fraction, 1e-12))
+    top = signal.lfilter(b, a, g) * (fraction > 0) + signal.lfilter(b, a, e)
+    return g[2000:], top[2000:]
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.5, 0.9])
+def test_variance_ratio_predicts_the_scatter_of_the_corrected_band_power(
+        fraction: float) -> None:
+    """A resonance driven by a white floor (unit variance at 200 Hz: S_common = 2 / fs exactly)
+    and by an independent source, 24 s records (8 Welch segments), 400 of them. The corrected
+    band power has the plain one's mean (the correction has expectation zero). The variance
+    reduction :func:`variance_ratio` reads from each record's Welch segments errs on the safe
+    side of the one measured over the records: 1.07 with no floor path (measured 1.03), 1.05 for
+    a measured 0.83 when the floor explains half the band power (H1 from 8 segments at a
+    coherence of 0.5 is itself noisy), 0.55 for 0.28 when it explains 90 %. On the batch engine
+    the intervals it gives cover 94 % (table1) and 96 % (TEM): test_uncertainty.py."""
+    rng = np.random.default_rng(11)
+    fs, n, f_r = 200.0, 4800, 3.8
+    nper = est.choose_nperseg(fs, n)
+    plain, corrected, ratios = [], [], []
+    for _ in range(400):
+        g, top = _records(fs, n, fraction, rng)
+        f, (pg, pt, pgt), _ = est.welch_sums(g, top, fs, nper)
+        common = np.full(f.size, 2.0 / fs)
+        plain.append(modetable.resonance_band_rms(f, pt, f_r) ** 2)
+        corrected.append(band_power_cv(f, pt, pg, pgt / pg, common, f_r))
+        ratios.append(variance_ratio(f, top, g, common, f_r, fs, nper))
+    p, c = np.array(plain), np.array(corrected)
+    assert abs(c.mean() / p.mean() - 1.0) < 3 * np.std(c / p.mean()) / np.sqrt(c.size)
+    measured = (c.var() / c.mean() ** 2) / (p.var() / p.mean() ** 2)
+    assert measured * 0.95 <= np.mean(ratios) <= measured * 2.2
+    assert measured < {0.0: 1.15, 0.5: 0.95, 0.9: 0.4}[fraction]
+
+
+def test_segment_spectra_average_to_the_welch_psd() -> None:
+    x = np.random.default_rng(3).standard_normal(5000)
+    f, p = est.psd(x, 100.0, 512)
+    s = segment_spectra(x, 100.0, 512)
+    assert s.shape == (f.size, est.welch_averages(x.size, 512))
+    assert_allclose(np.mean(np.abs(s) ** 2, axis=1), p, rtol=1e-10)
