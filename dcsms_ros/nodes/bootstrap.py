@@ -76,8 +76,8 @@ class RosSession:
 
 
 @contextmanager
-def ros_context(args: Sequence[str] | None = None, signals: bool = False
-                ) -> Iterator[RosSession]:
+def ros_context(args: Sequence[str] | None = None, signals: bool = False,
+                context: Context | None = None) -> Iterator[RosSession]:
     """An initialised rclpy context for the ``with`` block, shut down when it ends.
 
     Parameters
@@ -88,6 +88,9 @@ def ros_context(args: Sequence[str] | None = None, signals: bool = False
     signals : bool
         True: SIGINT and SIGTERM set the session's :class:`StopFlag` until the block ends
         (a node process, the recorder). False: leave the process's handlers alone.
+    context : Context, optional
+        A fresh (uninitialised) context to initialise, e.g. a composed host's
+        :class:`~.hotpath.DrivenContext`; default: a new plain one.
 
     Yields
     ------
@@ -100,7 +103,7 @@ def ros_context(args: Sequence[str] | None = None, signals: bool = False
     nodes must be destroyed inside the block, before the context goes.
     """
     keep_discovery_local()
-    session = RosSession(Context())
+    session = RosSession(context if context is not None else Context())
     old = {s: signal.signal(s, session.stop) for s in STOP_SIGNALS} if signals else {}
     try:
         rclpy.init(args=None if args is None else list(args), context=session.context,

@@ -5,7 +5,8 @@
 graph (:mod:`dcsms_ros.graph`) with its own class, name, parameters and services, all on one
 rclpy context. The node classes are the ones of the one-process-per-node deployment; what
 changes is who serves their per-sample subscriptions: one :class:`~.hotpath.HotLoop`, the
-*driver*, serves every node's hot path in one thread (:func:`.hotpath.drive`). In lockstep the
+*driver*, serves every node's hot path in one thread (the nodes live on a
+:class:`~.hotpath.DrivenContext`, which holds it). In lockstep the
 plant publishes sample k, the decoupling takes it and answers, each controller takes that
 answer and answers in turn, and the plant takes the forces and publishes k+1 - every hop
 through the nodes' real publishers and subscriptions, so a subscriber in another process (a
@@ -36,8 +37,8 @@ from rclpy.node import Node
 
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, GraphSpec, NodeSpec, spec_from_dict
-from dcsms_ros.nodes import hotpath
 from dcsms_ros.nodes.bootstrap import STOP_EXCEPTIONS, ros_context, spin_until
+from dcsms_ros.nodes.hotpath import DrivenContext
 from dcsms_ros.nodes.recorder import Recorder
 from dcsms_ros.nodes.runtime import close_nodes, config_error, quiesce
 
@@ -67,9 +68,10 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
     """Run the composed graph until a signal or the plant's end; see the module notes."""
     spec = spec_from_dict(yaml.safe_load(graph_file.read_text()))
     status = 0
-    with ros_context(["--ros-args", "--params-file", str(params_file)], signals=True) as ros:
-        ctx = ros.context
-        loop = hotpath.drive(ctx, "driver")
+    ctx = DrivenContext("driver")
+    loop = ctx.driver
+    with ros_context(["--ros-args", "--params-file", str(params_file)], signals=True,
+                     context=ctx) as ros:
         nodes: list[Node] = []
         recorder: Any = None
         executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS, context=ctx)
@@ -99,7 +101,6 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
             pass
         finally:
             loop.stop()
-            hotpath.undrive(ctx)
             since = time.time_ns()
             for nd in reversed(nodes):
                 quiesce(executor, nd, timeout_s=1.0)

@@ -5,7 +5,7 @@ One sample: ``velocity/<body>`` (TwistStamped) -> ``loop.step`` -> ``force/<id>`
 serialized CDR (:mod:`dcsms_ros.cdr`), names relative to the graph's namespace. The node
 publishes for every sample, zero while disabled, because the lockstep plant waits for every
 controller. A repeated stamp (lockstep retransmission) is answered from the cache, an older one
-is dropped (:class:`~dcsms_ros.protocols.responder.StampResponder`). ``~/enable``
+is dropped (:class:`~dcsms_ros.protocols.responder.Answerer`). ``~/enable``
 (std_srvs/SetBool) fades the loop in or out over ``control.fade_time_s``; parameter ``enabled``
 starts it at full gain in lockstep, as the batch engine starts the controllers of its initial
 mode, and fades it in from zero in real time (a restarted controller rejoins a running plant
@@ -43,19 +43,17 @@ from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import node_status, to_stamp
 from dcsms_ros.nodes.params import (
-    FirstSampleGate,
     NodeConfig,
+    answerer,
     declare_local,
     declare_observed,
     declare_schedule,
 )
 from dcsms_ros.nodes.runtime import Stoppable
 from dcsms_ros.nodes.stability import StabilityGuard
+from dcsms_ros.protocols.gate import MATCH_TIMEOUT_S
 from dcsms_ros.protocols.pacer import Watchdog
-from dcsms_ros.protocols.responder import StampResponder, Verdict
 
-#: Longest hold of the first lockstep answer while readers match, s.
-MATCH_TIMEOUT_S = 5.0
 STEADY = Clock(clock_type=ClockType.STEADY_TIME)
 
 
@@ -93,9 +91,6 @@ class ControllerNode(Node, Stoppable):
         enabled = declare_local(self, "enabled", False, "Start enabled at full gain (no fade), "
                                 "as the batch engine starts its initial mode")
         self.observed = declare_observed(self)
-        # lockstep: the first sample is answered only once the output reaches every reader
-        # (the plant retransmits it), so an observer misses nothing; the loop is not stepped
-        self._gate = FirstSampleGate(self, self.lockstep, MATCH_TIMEOUT_S)
         cfg = self.params.cfg
         # lockstep starts at full gain, as the batch engine does; real time fades in from zero,
         # so a (re)started controller joins a running plant without a kick
@@ -113,7 +108,10 @@ class ControllerNode(Node, Stoppable):
                            qos.stream_sub(self.lockstep), raw=True)
         self.create_service(SetBool, "~/enable", self._on_enable)
         self._zero = np.zeros(self.dof)
-        self.answers: StampResponder[bytes] = StampResponder()
+        # lockstep: the first sample is answered (the loop stepped) only once the output
+        # reaches every reader; the plant retransmits it meanwhile
+        self.answers = answerer(self, self.pub.publish, self.lockstep, [self.pub],
+                                self.observed)
         self.samples = self.nonfinite_out = 0
         self.stale_at_mono_ns = 0
         self.changed_at_ns = -1
@@ -143,10 +141,7 @@ class ControllerNode(Node, Stoppable):
         # implausible (non-finite, > 10 m/s): counted and logged here, NaN for the loop, which
         # answers it with zero force (lockstep goes on) and leaves its filters untouched
         x = self.guard.clean(x, np.nan)
-        verdict = self.answers.judge(ns)
-        if verdict is Verdict.REPEAT:
-            self.pub.publish(self.answers.cache)
-        if verdict is not Verdict.NEW or not self._gate.ready([self.pub], self.observed):
+        if not self.answers.due(ns):
             return
         last = self.answers.last_ns
         if not self.lockstep and last >= 0 and self._linked:
@@ -168,7 +163,7 @@ class ControllerNode(Node, Stoppable):
         if not np.isfinite(w).all():  # defensive: a NaN must never reach an actuator
             self.nonfinite_out += 1
             w = self._zero
-        self.pub.publish(self.answers.store(ns, self.writer.encode(ns, w)))
+        self.answers.reply(ns, self.writer.encode(ns, w))
         self.samples += 1
         seen = (self.loop.nonfinite, self.loop.saturations)
         if seen != self._seen:

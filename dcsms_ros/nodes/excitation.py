@@ -3,7 +3,7 @@
 Publishes ``force/excitation`` (geometry_msgs/WrenchStamped, frame_id = the pushed stage, N and
 N*m; names relative to the graph's namespace) for every sample of the plant: it answers each
 ``sensors/raw`` sample, stamped like it, as a controller answers its velocity (a repeated stamp
-from the cache, :class:`~dcsms_ros.protocols.responder.StampResponder`), so the plant (parameter
+from the cache, :class:`~dcsms_ros.protocols.responder.Answerer`), so the plant (parameter
 ``excitation: true``) sums it with the controllers' wrenches before allocation and clipping and,
 in lockstep, waits for it like for a controller (same timeout and absence rules; in real time a
 stale excitation counts as zero after ``control.input_timeout_s``). Zero while inactive. The
@@ -36,18 +36,16 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.excitation import Excitation, check_specs, parse_spec
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.controller import MATCH_TIMEOUT_S
 from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import node_status, to_stamp
 from dcsms_ros.nodes.params import (
-    FirstSampleGate,
     NodeConfig,
+    answerer,
     declare_local,
     declare_observed,
     declare_schedule,
 )
 from dcsms_ros.nodes.runtime import Stoppable, main_for
-from dcsms_ros.protocols.responder import StampResponder, Verdict
 
 
 class ExcitationNode(Node, Stoppable):
@@ -76,7 +74,6 @@ class ExcitationNode(Node, Stoppable):
                                             "sweeps and stepped sines; 0: 60 s [s]", lo=0.0,
                                             hi=1e9))
         self.observed = declare_observed(self)
-        self._gate = FirstSampleGate(self, self.lockstep, MATCH_TIMEOUT_S)
         self.cfg = cfg
         self.rate = cfg.plant.rate_hz
         self.seed = cfg.disturbance.seed
@@ -88,11 +85,12 @@ class ExcitationNode(Node, Stoppable):
         self.k0 = 0  # sample the excitation was started on
         self._start_pending = start  # start on the first sample (lockstep: sample 0)
         self.tripped = False
-        self.answers: StampResponder[bytes] = StampResponder()
         self.samples = 0
         self.names = topics.Names(self.get_namespace())
         self.pub = self.create_publisher(WrenchStamped, topics.LOCAL.force(topics.EXCITATION_ID),
                                          qos.stream_pub(self.lockstep))
+        self.answers = answerer(self, self.pub.publish, self.lockstep, [self.pub],
+                                self.observed)
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         self.hot.subscribe(JointState, topics.LOCAL.sensors_raw, self._on_sample,
                            qos.stream_sub(self.lockstep), raw=True)
@@ -110,11 +108,7 @@ class ExcitationNode(Node, Stoppable):
 
     def _on_sample(self, buf: bytes) -> None:
         ns = self.reader.read(buf)[0]
-        verdict = self.answers.judge(ns)
-        if verdict is Verdict.REPEAT and self.answers.cache is not None:
-            self.pub.publish(self.answers.cache)  # a lockstep retransmission: the same answer
-            return
-        if verdict is not Verdict.NEW or not self._gate.ready([self.pub], self.observed):
+        if not self.answers.due(ns):
             return
         k = round(ns * self.rate / 1e9)
         if self._start_pending:
@@ -125,7 +119,7 @@ class ExcitationNode(Node, Stoppable):
         if self.exc is not None:
             row = self.exc.at(k - self.k0)[self.stage - 1]
             w = row if np.isfinite(row).all() else self._zero
-        self.pub.publish(self.answers.store(ns, self.writer.encode(ns, w)))
+        self.answers.reply(ns, self.writer.encode(ns, w))
         self.samples += 1
 
     def _stop(self) -> None:

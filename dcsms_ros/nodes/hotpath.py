@@ -11,11 +11,13 @@ every queued message with ``take_message`` and runs its handler under the node's
 Services, parameters, timers and ``/clock`` stay with the normal executor, which wakes rarely.
 
 One process per node: each node's :class:`HotPath` gets its own loop. Composed (several nodes
-on one context, :mod:`.container`): :func:`drive` makes one loop serve the hot paths of every
-node of the context, in one *driver* thread, so one sample cycles plant -> decoupling ->
-controllers -> plant through the nodes' real publishers and subscriptions without a thread
-switch: in one process a published message is in the other node's subscription at once, and
-the loop keeps serving until a pass over all subscriptions takes nothing.
+on one context, :mod:`.container`): the host creates the nodes on a :class:`DrivenContext`,
+whose :attr:`~DrivenContext.driver` loop serves the hot paths of every node of the context, in
+one thread (the driver belongs to the context, not to the module: nothing to register or
+forget). One sample cycles plant -> decoupling -> controllers -> plant through the nodes' real
+publishers and subscriptions without a thread switch: in one process a published message is
+in the other node's subscription at once, and the loop keeps serving until a pass over all
+subscriptions takes nothing.
 
 ``DCSMS_HOT_PATH=0`` in the environment turns it off: the subscriptions are then ordinary
 executor subscriptions with the same handlers (the benchmark compares both in one run).
@@ -67,24 +69,6 @@ class DetachedGroup(CallbackGroup):
 
     def ending_execution(self, entity: Any) -> None:
         return None
-
-
-#: Composed processes: context id -> the loop that serves every hot path of that context.
-_DRIVERS: dict[int, HotLoop] = {}
-
-
-def drive(context: Context, name: str = "driver") -> HotLoop:
-    """Make one :class:`HotLoop` serve the hot paths of every node created on ``context``
-    from now on (composed deployment); start it with :meth:`HotLoop.start` once the nodes
-    exist."""
-    loop = HotLoop(context, name)
-    _DRIVERS[id(context)] = loop
-    return loop
-
-
-def undrive(context: Context) -> None:
-    """Forget the driver of ``context`` (after its loop stopped)."""
-    _DRIVERS.pop(id(context), None)
 
 
 class HotPath:
@@ -158,14 +142,14 @@ class HotPath:
 
     def start(self) -> None:
         """Serve the subscriptions: by this process's driver loop if the node's context is
-        driven (composed), else by a thread of its own (no-op when off, when already started,
-        or without subscriptions and tick)."""
+        a :class:`DrivenContext` (composed), else by a thread of its own (no-op when off, when
+        already started, or without subscriptions and tick)."""
         if not self.on or self.loop is not None or not (self.subs or self._tick):
             return
-        driver = _DRIVERS.get(id(self.node.context))
-        if driver is not None:
-            self.loop = driver
-            driver.add(self)
+        context = self.node.context
+        if isinstance(context, DrivenContext):
+            self.loop = context.driver
+            context.driver.add(self)
             return
         self.loop = HotLoop(self.node.context, f"hot-{self.node.get_name()}")
         self._own = True
@@ -327,5 +311,22 @@ class HotLoop:
                         timeout = min(timeout, max(nxt, 0.0))
 
 
-__all__ = ["GIL_SWITCH_S", "IDLE_S", "DetachedGroup", "HotLoop", "HotPath", "drive", "enabled",
-           "undrive"]
+class DrivenContext(Context):
+    """An rclpy context whose nodes' hot paths one :class:`HotLoop`, :attr:`driver`, serves
+    (composed deployment). The host passes it to :func:`.bootstrap.ros_context` and to every
+    node it creates, then starts :attr:`driver` once the nodes exist and stops it before they
+    are destroyed.
+
+    Parameters
+    ----------
+    name : str
+        Name of the driver thread.
+    """
+
+    def __init__(self, name: str = "driver") -> None:
+        super().__init__()
+        self.driver = HotLoop(self, name)
+
+
+__all__ = ["GIL_SWITCH_S", "IDLE_S", "DetachedGroup", "DrivenContext", "HotLoop", "HotPath",
+           "enabled"]

@@ -17,9 +17,8 @@ that error as the reason, and nothing changes. Accepted changes reach the node t
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, TypeVar
 
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -41,12 +40,14 @@ from dcsms_ros.core.config import SystemConfig, config_from_flat
 from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.core.schema import GLOBAL_SPECS, ParamSpec, expand_specs
 from dcsms_ros.errors import ConfigError
-from dcsms_ros.protocols import gate
+from dcsms_ros.graph import SCHEDULES
+from dcsms_ros.protocols.responder import Answerer
 
 #: Prefixes of run-time tunable names; everything else is fixed once a node runs.
 MUTABLE_PREFIXES = ("feedback.", "feedforward.", "control.", "supervisor.")
 #: Prefixes that are not structure (declared only by the nodes that select them).
 _NON_STRUCTURE = ("feedback.", "feedforward.", "control.", "disturbance.", "supervisor.")
+T = TypeVar("T")
 
 _TYPES = {
     "float": (ParameterType.PARAMETER_DOUBLE, Parameter.Type.DOUBLE),
@@ -251,9 +252,6 @@ def declare_local(node: Node, name: str, default: Any, description: str,
                           f"{exc.args[-1] if exc.args else exc}") from None
 
 
-SCHEDULES = ("lockstep", "realtime")
-
-
 def declare_schedule(node: Node) -> str:
     """Declare ``schedule`` (``lockstep`` | ``realtime``, default realtime) and return it."""
     value = declare_local(node, "schedule", "realtime", "Time schedule: lockstep (deterministic, "
@@ -286,23 +284,14 @@ def outside_graph(node: Node, topic: str) -> bool:
     return any(not in_graph(i.node_name) for i in node.get_subscriptions_info_by_topic(topic))
 
 
-class FirstSampleGate:
-    """Lockstep: hold a node's first answer until every reader of its publishers is matched
-    (:class:`dcsms_ros.protocols.gate.FirstSampleGate` on this node's graph view)."""
-
-    def __init__(self, node: Node, lockstep: bool, timeout_s: float = 5.0) -> None:
-        self._node = node
-        self._gate = gate.FirstSampleGate(lockstep, timeout_s)
-
-    def ready(self, pubs: list[Publisher], observed: list[str]) -> bool:
-        """True once the first sample may go out (then always)."""
-        if self._gate.open:
-            return True
-        ok = self._gate.ready(lambda: publishers_matched(self._node, pubs, observed),
-                              time.monotonic())
-        if ok and self._gate.timed_out:
-            self._node.get_logger().warning("not every reader matched; answering anyway")
-        return ok
+def answerer(node: Node, publish: Callable[[T], None], lockstep: bool,
+             pubs: list[Publisher], observed: list[str]) -> Answerer[T]:
+    """The per-sample :class:`~dcsms_ros.protocols.responder.Answerer` of ``node``: in
+    lockstep its first answer waits until ``pubs`` matched every reader this node sees (and
+    ``observed`` topics an observer), so an observer misses nothing (the plant retransmits)."""
+    return Answerer(publish, lockstep, lambda: publishers_matched(node, pubs, observed),
+                    on_timeout=lambda: node.get_logger().warning(
+                        "not every reader matched; answering anyway"))
 
 
 def publishers_matched(node: Node, pubs: list[Publisher], observed: list[str]) -> bool:

@@ -5,7 +5,7 @@ Subscribes to ``/dcsms/sensors/raw`` (``sensor_msgs/JointState``, ``velocity`` m
 ``/dcsms/velocity/<body>`` (``geometry_msgs/TwistStamped``, frame_id = body) with the sample's
 stamp; both sides as serialized CDR (:mod:`dcsms_ros.cdr`). A repeated stamp (lockstep
 retransmission) is answered from the cache without stepping the filters again; an older stamp
-is ignored (:class:`~dcsms_ros.protocols.responder.StampResponder`). Channels are matched by
+is ignored (:class:`~dcsms_ros.protocols.responder.Answerer`). Channels are matched by
 name, so a publisher may send them in any order; a missing channel reads NaN, which the core
 turns into a zero twist for that body (counted).
 """
@@ -32,16 +32,12 @@ from dcsms_ros.nodes.hotpath import HotPath
 from dcsms_ros.nodes.msgs import node_status, to_stamp
 from dcsms_ros.nodes.params import (
     SELECTORS,
-    FirstSampleGate,
     NodeConfig,
+    answerer,
     declare_observed,
     declare_schedule,
 )
 from dcsms_ros.nodes.runtime import main_for
-from dcsms_ros.protocols.responder import StampResponder, Verdict
-
-#: Longest hold of the first lockstep answer while readers match, s.
-MATCH_TIMEOUT_S = 5.0
 
 
 class SensorDecouplingNode(Node):
@@ -54,8 +50,6 @@ class SensorDecouplingNode(Node):
         cfg = self.params.cfg
         lockstep = declare_schedule(self) == "lockstep"
         self.observed = declare_observed(self)
-        # lockstep: answer the first sample only once every reader is matched (see controller)
-        self._gate = FirstSampleGate(self, lockstep, MATCH_TIMEOUT_S)
         self.dec = Decoupler(cfg)
         self.guard = InputGuard(self, "raw sensor channels", MAX_VELOCITY_MPS)
         self.dof = cfg.plant.dof
@@ -73,7 +67,8 @@ class SensorDecouplingNode(Node):
         self.hot = HotPath(self, threading.Lock())  # _on_raw runs on the hot thread
         self.hot.subscribe(JointState, topics.LOCAL.sensors_raw, self._on_raw,
                            qos.stream_sub(lockstep), raw=True)
-        self.answers: StampResponder[list[bytes]] = StampResponder()
+        # lockstep: the first sample is answered only once every reader is matched
+        self.answers = answerer(self, self._publish, lockstep, self.pubs, self.observed)
         self.samples = 0
         self.bad_messages = 0
         self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -105,19 +100,18 @@ class SensorDecouplingNode(Node):
         ns, names, v = self.reader.read(buf)
         # implausible channels are counted on arrival and read NaN (that body's twist is zero)
         raw = self.guard.clean_each(self._channels(names, v), np.nan)
-        verdict = self.answers.judge(ns)
-        if verdict is Verdict.OLD or (verdict is Verdict.NEW and not self._gate.ready(
-                self.pubs, self.observed)):
+        if not self.answers.due(ns):
             return
-        if verdict is Verdict.NEW:
-            tw = self.dec.step(raw)
-            self.samples += 1
-            self.answers.store(ns, [w.encode(ns, tw[i]) for i, w in enumerate(self.writers)])
-        for pub, m in zip(self.pubs, self.answers.cache or [], strict=True):
-            pub.publish(m)
+        tw = self.dec.step(raw)
+        self.samples += 1
+        self.answers.reply(ns, [w.encode(ns, tw[i]) for i, w in enumerate(self.writers)])
         if self.dec.nonfinite:
             self.get_logger().warning(f"non-finite sensor channels: {self.dec.nonfinite} "
                                       f"body samples zeroed", throttle_duration_sec=2.0)
+
+    def _publish(self, msgs: list[bytes]) -> None:
+        for pub, m in zip(self.pubs, msgs, strict=True):
+            pub.publish(m)
 
     def _report(self) -> None:
         level = DiagnosticStatus.WARN if self.dec.nonfinite or self.bad_messages else \

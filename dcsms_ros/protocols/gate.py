@@ -11,6 +11,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+#: Longest hold of the first lockstep answer while readers match, s.
+MATCH_TIMEOUT_S = 5.0
+
 
 class FirstSampleGate:
     """Closed until ``matched()`` is true once, or ``timeout_s`` after the first try.
@@ -22,7 +25,7 @@ class FirstSampleGate:
         True if it opened by the timeout (the caller logs it).
     """
 
-    def __init__(self, closed: bool, timeout_s: float = 5.0) -> None:
+    def __init__(self, closed: bool, timeout_s: float = MATCH_TIMEOUT_S) -> None:
         self.open = not closed
         self.timeout_s = timeout_s
         self.timed_out = False
@@ -40,4 +43,4 @@ class FirstSampleGate:
         return self.open
 
 
-__all__ = ["FirstSampleGate"]
+__all__ = ["MATCH_TIMEOUT_S", "FirstSampleGate"]

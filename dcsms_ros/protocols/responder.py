@@ -1,15 +1,21 @@
-"""Per-sample answers keyed by the input's stamp: compute once, repeat from the cache.
+"""The per-sample answer protocol of the decoupling, the controllers and the excitation.
 
-In lockstep the plant republishes a sample whose answers are missing; a node that already
-answered it must not step its filters again, so a repeated stamp gets the cached answer. A
-stamp older than the newest answered one is dropped (out of order). Only a new stamp is
-computed.
+Each of them answers every input sample with one output stamped like it. In lockstep the plant
+republishes a sample whose answers are missing; a node that already answered it must not step
+its filters again, so a repeated stamp gets the cached answer (published again). A stamp older
+than the newest answered one is dropped (out of order). Only a new stamp is computed, and the
+first one only once the first-sample gate (:mod:`.gate`) is open. :class:`Answerer` is the
+whole protocol; :class:`StampResponder` its stamp bookkeeping.
 """
 
 from __future__ import annotations
 
 import enum
+import time
+from collections.abc import Callable
 from typing import Generic, TypeVar
+
+from dcsms_ros.protocols.gate import MATCH_TIMEOUT_S, FirstSampleGate
 
 T = TypeVar("T")
 
@@ -58,4 +64,56 @@ class StampResponder(Generic[T]):
         return answer
 
 
-__all__ = ["StampResponder", "Verdict"]
+class Answerer(StampResponder[T]):
+    """Answer each new input once, repeat the answer to a retransmission, drop older ones.
+
+    Per input: ``if answerer.due(stamp_ns): answerer.reply(stamp_ns, compute(...))``.
+
+    Parameters
+    ----------
+    publish : callable
+        Sends an answer (a repeat too).
+    gated : bool
+        Hold the first answer until ``matched()`` (lockstep); False: answer from the start.
+    matched : callable
+        True once every reader of the answers is matched (polled only while gated).
+    timeout_s : float
+        Longest hold of the first answer, s.
+    on_timeout : callable, optional
+        Called once if the gate opened by the timeout (the node logs it).
+    clock : callable
+        Monotonic time, s (a fake in tests).
+    """
+
+    def __init__(self, publish: Callable[[T], None], gated: bool, matched: Callable[[], bool],
+                 timeout_s: float = MATCH_TIMEOUT_S, on_timeout: Callable[[], None] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        super().__init__()
+        self.publish = publish
+        self.gate = FirstSampleGate(gated, timeout_s)
+        self._matched = matched
+        self._on_timeout = on_timeout
+        self._clock = clock
+
+    def due(self, stamp_ns: int) -> bool:
+        """True if the input stamped ``stamp_ns`` is to be computed and :meth:`reply`-ed; a
+        repeat is published from the cache here, an old or held (gated) one is dropped."""
+        verdict = self.judge(stamp_ns)
+        if verdict is Verdict.NEW:
+            return self.gate.open or self._first()
+        if verdict is Verdict.REPEAT:
+            self.publish(self.cache)  # type: ignore[arg-type]  # judge: cache is set
+        return False
+
+    def reply(self, stamp_ns: int, answer: T) -> None:
+        """Store and publish ``answer`` to the input stamped ``stamp_ns``."""
+        self.publish(self.store(stamp_ns, answer))
+
+    def _first(self) -> bool:
+        ok = self.gate.ready(self._matched, self._clock())
+        if ok and self.gate.timed_out and self._on_timeout is not None:
+            self._on_timeout()
+        return ok
+
+
+__all__ = ["Answerer", "StampResponder", "Verdict"]

@@ -11,12 +11,13 @@ import time
 from pathlib import Path
 
 import pytest
+import rclpy
 from rclpy.node import Node
 from std_msgs.msg import Header
 
 from dcsms_ros.graph import define_graph
 from dcsms_ros.nodes.deploy import children
-from dcsms_ros.nodes.hotpath import GIL_SWITCH_S, HotPath
+from dcsms_ros.nodes.hotpath import GIL_SWITCH_S, DrivenContext, HotPath
 from dcsms_ros.nodes.runtime import RT_PRIORITY_ENV, rt_priority_from_env
 
 
@@ -104,3 +105,47 @@ def test_a_hot_loop_shortens_the_gil_switch_interval(ctx) -> None:
     finally:
         sys.setswitchinterval(old)
         node.destroy_node()
+
+
+def test_a_driven_context_serves_its_nodes_hot_paths_in_one_thread(ctx, domain: int) -> None:
+    """Composed: the hot paths of the nodes on a DrivenContext are its driver's, and a message
+    one of them publishes is answered and taken back in the driver thread; a node on a plain
+    context (the ``ctx`` fixture) gets a loop of its own."""
+    driven = DrivenContext("test-driver")
+    rclpy.init(args=[], context=driven, domain_id=domain)
+    nodes: list[Node] = []
+    paths: list[HotPath] = []
+    try:
+        a, b = Node("hot_a", context=driven), Node("hot_b", context=driven)
+        alone = Node("hot_alone", context=ctx)
+        nodes = [a, b, alone]
+        got: list[str] = []
+        ping = a.create_publisher(Header, "hot_ping", 10)
+        pong = b.create_publisher(Header, "hot_pong", 10)
+        paths = [HotPath(n, threading.Lock()) for n in nodes]
+        ha, hb, hc = paths
+        hb.subscribe(Header, "hot_ping", pong.publish, 10)
+        ha.subscribe(Header, "hot_pong", lambda m: got.append(threading.current_thread().name),
+                     10)
+        hc.subscribe(Header, "hot_alone", lambda m: None, 10)
+        for h in paths:
+            h.start()
+        assert ha.loop is driven.driver and hb.loop is driven.driver
+        assert ha.driven and hb.driven and not hc.driven
+        assert hc.loop is not None and hc.loop is not driven.driver
+        driven.driver.start()
+        end = time.monotonic() + 10.0
+        while not (ping.get_subscription_count() and pong.get_subscription_count()):
+            assert time.monotonic() < end, "the nodes never matched"
+            time.sleep(0.01)
+        while not got and time.monotonic() < end:
+            ping.publish(Header())
+            time.sleep(0.05)
+        assert got and set(got) == {"test-driver"}
+    finally:
+        driven.driver.stop()
+        for h in paths:
+            h.stop()  # a driven path's stop leaves the driver to its host: a no-op
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown(context=driven)

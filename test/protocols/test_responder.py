@@ -1,8 +1,11 @@
-"""Stamp responder: a repeat gets the cached answer, an older stamp is dropped."""
+"""Answer protocol: a repeat gets the cached answer, an older stamp is dropped, the first
+answer waits for the gate (fake stamps, readers and clock)."""
 
 from __future__ import annotations
 
-from dcsms_ros.protocols.responder import StampResponder, Verdict
+import pytest
+
+from dcsms_ros.protocols.responder import Answerer, StampResponder, Verdict
 
 
 def test_new_repeat_old() -> None:
@@ -20,3 +23,69 @@ def test_nothing_cached_yet_is_new() -> None:
     """Before any answer a stamp is new (even -1), never a repeat."""
     r: StampResponder[str] = StampResponder()
     assert r.judge(-1) is Verdict.NEW and r.repeats == 0
+
+
+class _Fake:
+    """A fake reader view and clock for :class:`Answerer`."""
+
+    def __init__(self, gated: bool, timeout_s: float = 5.0) -> None:
+        self.sent: list[str] = []
+        self.matched = False
+        self.now = 0.0
+        self.timeouts = 0
+        self.a: Answerer[str] = Answerer(self.sent.append, gated, lambda: self.matched,
+                                         timeout_s, self._timeout, lambda: self.now)
+
+    def _timeout(self) -> None:
+        self.timeouts += 1
+
+    def feed(self, stamp_ns: int) -> bool:
+        """One input: compute ``"a<stamp>"`` when due; True if computed."""
+        if not self.a.due(stamp_ns):
+            return False
+        self.a.reply(stamp_ns, f"a{stamp_ns}")
+        return True
+
+
+def test_answer_once_repeat_from_cache_drop_old() -> None:
+    f = _Fake(gated=False)
+    stamps = [0, 500, 500, 1000, 500, 1000, 1500]
+    computed = [f.feed(s) for s in stamps]
+    assert computed == [True, True, False, True, False, False, True]
+    assert f.sent == ["a0", "a500", "a500", "a1000", "a1000", "a1500"]
+    assert (f.a.repeats, f.a.out_of_order, f.a.last_ns) == (2, 1, 1500)
+
+
+def test_gated_first_sample_waits_for_readers_then_never_again() -> None:
+    """Held samples are neither computed nor published nor remembered: the retransmission
+    of the same stamp is computed once the readers match."""
+    f = _Fake(gated=True)
+    assert not f.feed(0) and not f.feed(0)
+    f.now = 1.0
+    f.matched = True
+    assert f.feed(0) and f.sent == ["a0"]
+    f.matched = False  # a reader going away later does not close the gate
+    assert f.feed(500) and f.sent == ["a0", "a500"]
+    assert f.timeouts == 0 and f.a.repeats == 0
+
+
+@pytest.mark.parametrize("timeout_s", [0.5, 5.0])
+def test_gate_opens_after_timeout_and_reports_once(timeout_s: float) -> None:
+    f = _Fake(gated=True, timeout_s=timeout_s)
+    f.now = 10.0
+    assert not f.feed(0)
+    f.now = 10.0 + timeout_s  # not yet: strictly after the timeout
+    assert not f.feed(0)
+    f.now = 10.0 + timeout_s + 1e-3
+    assert f.feed(0) and f.feed(500)
+    assert f.timeouts == 1 and f.a.gate.timed_out and f.sent == ["a0", "a500"]
+
+
+def test_list_answer_is_repeated_as_one_object() -> None:
+    """A list answer (the decoupling's one message per body) is repeated as one object."""
+    sent: list[list[bytes]] = []
+    a: Answerer[list[bytes]] = Answerer(sent.append, False, lambda: True)
+    assert a.due(7)
+    a.reply(7, [b"x", b"y"])
+    assert not a.due(7)
+    assert sent == [[b"x", b"y"], [b"x", b"y"]] and sent[0] is sent[1]
