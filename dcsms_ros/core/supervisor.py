@@ -48,6 +48,10 @@ class State(Enum):
     LATCHED = "LATCHED"
 
 
+#: The labels of the states in which a trip holds the table Passive (an excitation stops).
+TRIPPED_STATES = frozenset({State.TRIPPED.value, State.LATCHED.value})
+
+
 @dataclass(frozen=True)
 class SupervisorSettings:
     """Thresholds and times of the supervisor (SI units).
@@ -412,5 +416,5 @@ class CheckpointFeed:
                           max(self.peaks))
 
 
-__all__ = ["Checkpoint", "CheckpointFeed", "State", "Supervisor", "SupervisorSettings",
-           "Transition"]
+__all__ = ["TRIPPED_STATES", "Checkpoint", "CheckpointFeed", "State", "Supervisor",
+           "SupervisorSettings", "Transition"]

@@ -13,8 +13,9 @@ started on: a run active from sample 0 adds exactly what ``dcsms sim --excite`` 
 
 ``~/enable`` (std_srvs/SetBool, ``<namespace>/excitation/enable``) starts (true) or stops
 (false) it; parameter ``active`` starts it with the run. It is never active while the
-instability trip is latched: this graph's ``mode_switch`` reports the latch on ``/diagnostics``
-(``tripped``), which stops the excitation and refuses a start until the latch is reset.
+instability trip holds the table: ``mode_switch`` publishes every change of that on
+``supervisor/state`` (TRIPPED or LATCHED, with or without the supervisor), which stops the
+excitation and refuses a start until the supervisor re-engages or the latch is reset.
 """
 
 from __future__ import annotations
@@ -29,11 +30,13 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
 from dcsms_ros.cdr import WRENCH_STAMPED, JointStateReader, StampedWriter
 from dcsms_ros.core import topics
 from dcsms_ros.core.excitation import Excitation, check_specs, parse_spec
+from dcsms_ros.core.supervisor import TRIPPED_STATES
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.hotpath import HotPath
@@ -94,8 +97,9 @@ class ExcitationNode(Node, Stoppable):
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         self.hot.subscribe(JointState, topics.LOCAL.sensors_raw, self._on_sample,
                            qos.stream_sub(self.lockstep), raw=True)
-        self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diag,
-                                 qos.status())
+        # a decision from a named topic, not from another node's diagnostics text
+        self.create_subscription(String, topics.LOCAL.supervisor_state, self._on_state,
+                                 qos.events())
         self.create_service(SetBool, "~/enable", self._on_enable)
         self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f"excitation {', '.join(s.text for s in self.specs)} on "
@@ -144,17 +148,14 @@ class ExcitationNode(Node, Stoppable):
         self._report()
         return response
 
-    def _on_diag(self, msg: DiagnosticArray) -> None:
-        for st in msg.status:
-            if self.names.local_status(st.name) != "mode_switch":
-                continue
-            tripped = any(kv.key == "tripped" and kv.value == "True" for kv in st.values)
-            with self._lock:
-                if tripped and not self.tripped and self.active:
-                    self.get_logger().warning("instability trip: excitation stopped")
-                if tripped:
-                    self._stop()
-                self.tripped = tripped
+    def _on_state(self, msg: String) -> None:
+        tripped = msg.data.split(" ", 1)[0] in TRIPPED_STATES
+        with self._lock:
+            if tripped and not self.tripped and self.active:
+                self.get_logger().warning(f"instability trip: excitation stopped ({msg.data})")
+            if tripped:
+                self._stop()
+            self.tripped = tripped
 
     def _report(self) -> None:
         level = DiagnosticStatus.WARN if self.tripped else DiagnosticStatus.OK

@@ -424,6 +424,9 @@ class ModeSwitchNode(Node):
         self.trip_at = (time.monotonic_ns(), stamp_ns)
         self.get_logger().error(f"instability trip: {reason}; latching Passive until "
                                 f"{topics.LOCAL.reset_trip}")
+        k = self.feed.index(stamp_ns)
+        self.pub_state.publish(String(data=f"LATCHED Passive at {k / self.feed.rate:.4f} s: "
+                                      f"{reason} (no supervisor)"))
         with self._switch_lock:
             res = self.ctl.call_all(dict.fromkeys(self.controllers, False),
                                     self.switch_timeout_s, wait_for_service=False)
@@ -446,6 +449,9 @@ class ModeSwitchNode(Node):
                 self._publish_state(self.sfeed.sup.transitions[-1])
             else:
                 self.feed.reset()
+                k = self.feed.index(max(self.feed.judged_ns, 0))
+                self.pub_state.publish(String(
+                    data=f"OFF Passive at {k / self.feed.rate:.4f} s: reset_trip"))
             old, self.tripped, self.trip_reason = self.trip_reason, False, ""
         response.success = True
         response.message = f"trip cleared (was: {old}); mode stays {self.mode.label}"
