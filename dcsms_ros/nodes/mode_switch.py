@@ -143,7 +143,7 @@ class ModeSwitchNode(Node):
         self._forces = BatchReader(JOINT_STATE)
         self._twists = [BatchReader(TWIST_STAMPED) for _ in range(n + 1)]  # stages, ground
         self._cols = [2] if cfg.plant.dof == 1 else list(range(6))  # z, or the whole twist
-        self._hot = HotPath(self, self._lock)
+        self.hot = HotPath(self, self._lock)
         self._trip_subs: list[Any] = []
         self._asked = -1  # lockstep: the checkpoint stamp the plant waits for
         self._answered = -1
@@ -153,21 +153,21 @@ class ModeSwitchNode(Node):
             # executor wakes per sample: the queues are drained in blocks
             tq = qos.stream_pub(self.lockstep, durable=True)
             tq.depth = TRIP_DEPTH
-            self._trip_subs = [self._hot.detached(TwistStamped, topics.LOCAL.velocity(
+            self._trip_subs = [self.hot.detached(TwistStamped, topics.LOCAL.velocity(
                 f"stage{i + 1}"), tq, raw=True) for i in range(n)]
             if self.sfeed is not None:
-                self._ground_sub = self._hot.detached(TwistStamped, topics.LOCAL.velocity(
+                self._ground_sub = self.hot.detached(TwistStamped, topics.LOCAL.velocity(
                     "ground"), tq, raw=True)
                 fq = qos.stream_pub(self.lockstep, durable=True)
                 fq.depth = TRIP_DEPTH
-                self._force_sub = self._hot.detached(JointState, topics.LOCAL.actuators_applied,
+                self._force_sub = self.hot.detached(JointState, topics.LOCAL.actuators_applied,
                                                      fq, raw=True)
             if self.lockstep:
                 self.pub_checked = self.create_publisher(Header, topics.LOCAL.trip_checked,
                                                          qos.stream_pub(True))
-                self._hot.subscribe(Header, topics.LOCAL.trip_check, self._on_check,
+                self.hot.subscribe(Header, topics.LOCAL.trip_check, self._on_check,
                                     qos.stream_sub(True), raw=True)
-                self._hot.set_tick(self._check_tick)
+                self.hot.set_tick(self._check_tick)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.trip_enabled and self.pub_checked is None:
             self.create_timer(0.05, self._judge_locked,
@@ -180,7 +180,7 @@ class ModeSwitchNode(Node):
                                f"{'; trip checkpoints' if self.pub_checked else ''}"
                                f"{'; supervisor on' if self.sfeed else ''}")
         self._publish_state(None)
-        self._hot.start()
+        self.hot.start()
 
     # -- configuration -----------------------------------------------------------------------
     def _publish_config(self) -> None:
@@ -395,7 +395,7 @@ class ModeSwitchNode(Node):
         self._asked = stamp
         end = time.monotonic() + self.params.cfg.control.lockstep_timeout_s
         # hot path off (an executor callback): wait here for the samples still in flight
-        while self._check_tick() is not None and not self._hot.on and time.monotonic() < end:
+        while self._check_tick() is not None and not self.hot.on and time.monotonic() < end:
             time.sleep(0.0002)
 
     def _check_tick(self) -> float | None:
