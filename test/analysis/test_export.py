@@ -51,8 +51,9 @@ def test_topics_and_counts_rosbags_and_mcap(run: tuple[SimResult, Path, dict[str
 
     res, bag, counts = run
     k = res.t.size
+    # each scheduled switch is a supervisor transition too (ENGAGED <mode>: user set <mode>)
     expected = {topics.SENSORS_RAW: k, topics.ACTUATORS_APPLIED: k, topics.MODE: 3,
-                CONFIG_TOPIC: 1}
+                CONFIG_TOPIC: 1, topics.SUPERVISOR_STATE: 2}
     for b in topics.body_names(2):
         expected[topics.truth_topic(b)] = expected[topics.velocity_topic(b)] = k
     for cid in ("fb_stage1", "fb_stage2", "ff_stage1"):
