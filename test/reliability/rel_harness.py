@@ -160,9 +160,12 @@ class Graph:
         return out
 
 
-def _deep(depth: int = 5000) -> QoSProfile:
+def _deep(depth: int = 5000, reliable: bool = True) -> QoSProfile:
+    """A deep reader; a per-sample stream's must be best effort (the real-time writers are: a
+    reliable reader would not match them, see nodes/qos.py)."""
     return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,
-                      reliability=ReliabilityPolicy.RELIABLE)
+                      reliability=ReliabilityPolicy.RELIABLE if reliable
+                      else ReliabilityPolicy.BEST_EFFORT)
 
 
 class Probe:
@@ -182,10 +185,11 @@ class Probe:
         self.diag_log: list[tuple[int, str, str, dict[str, str]]] = []
         self.modes: list[tuple[int, str]] = []
         nd = self.node
-        nd.create_subscription(JointState, topics.ACTUATORS_APPLIED, self._on_applied, _deep())
+        nd.create_subscription(JointState, topics.ACTUATORS_APPLIED, self._on_applied,
+                               _deep(reliable=False))
         for c in self.forces:
             nd.create_subscription(WrenchStamped, topics.force_topic(c),
-                                   lambda m, c=c: self._on_force(c, m), _deep())
+                                   lambda m, c=c: self._on_force(c, m), _deep(reliable=False))
         nd.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diag, _deep(100))
         nd.create_subscription(String, topics.MODE, self._on_mode, qos.latched())
         self.executor = SingleThreadedExecutor(context=ctx)
