@@ -1,6 +1,7 @@
 """Table 4 of batch runs held in memory, with the definition ``dcsms analyze`` applies to a bag:
 the measured (decoupled) top-stage velocity after the settle time, its Welch PSD with the
-analysis's segment length, the Passive resonance and the one-third-octave band RMS."""
+analysis's segment length for the Passive resonance, and the one-third-octave band RMS of the
+whole record's multitaper PSD."""
 
 from __future__ import annotations
 
@@ -26,20 +27,20 @@ def table4_of_runs(runs: Mapping[Mode, SimResult], axes: Sequence[str],
     KeyError
         If ``runs`` has no run of the reference mode.
     """
-    spectra = {}
+    records, fs = {}, {}
     for m, res in runs.items():
-        fs = res.cfg.plant.rate_hz
+        fs[m] = res.cfg.plant.rate_hz
         n, dof = res.cfg.plant.num_stages, res.cfg.plant.dof
-        v = res.velocity[int(round(settle_s * fs)):, n]
+        v = res.velocity[int(round(settle_s * fs[m])):, n]
         cols = [0] if dof == 1 else [TRANSLATIONS.index(a) for a in axes]
-        nper = est.choose_nperseg(fs, v.shape[0])
-        spectra[m] = [est.psd(np.ascontiguousarray(v[:, c]), fs, nper) for c in cols]
+        records[m] = [np.ascontiguousarray(v[:, c]) for c in cols]
     f_r, base = {}, {}
     for j, a in enumerate(axes):
-        f, p = spectra[reference][j]
+        x, rate = records[reference][j], fs[reference]
+        f, p = est.psd(x, rate, est.choose_nperseg(rate, x.shape[0]))
         f_r[a] = modetable.resonance_frequency(f, np.sqrt(p))
-        base[a] = modetable.resonance_band_rms(f, p, f_r[a])
-    values = {m.label: {a: modetable.resonance_band_rms(*spectra[m][j], f_r[a]) / base[a]
+        base[a] = modetable.record_band_rms(x, rate, f_r[a])
+    values = {m.label: {a: modetable.record_band_rms(records[m][j], fs[m], f_r[a]) / base[a]
                         for j, a in enumerate(axes)} for m in runs}
     return f_r, values
 

@@ -8,17 +8,19 @@ so that part of the scatter can be removed without changing what is estimated:
 
     P_cv = P_top + sum_band w_i |H1_i|**2 (S_common_i - S_ground_i)
 
-with ``P_top`` the segment's band power of the top-stage velocity, ``S_ground`` its floor PSD,
-``H1`` its measured floor -> top transmissibility and ``S_common`` the floor PSD common to all
-the segments compared (their mean). The correction has expectation zero when the floor is
-stationary (``E[S_ground] = S_common``), so ``P_cv`` estimates the same band power; it removes
-the part of ``P_top`` the floor's fluctuation explains (the coherent part, ``|H1|**2 S_ground``),
-and keeps the rest (table forces, sensor noise, other floor axes). An error of ``H1`` (the
-bias of a Welch estimate on a peak narrower than a bin) only enters multiplied by the small
-difference ``S_common - S_ground``, so it is of second order. The ratio of two ``P_cv`` is
-the normalised value, as the paper defines it.
+with ``P_top`` the segment's band power of the top-stage velocity (from the whole record's
+multitaper PSD, :mod:`.multitaper`, which does not leak a sharp peak out of the band), ``S_ground``
+its floor Welch PSD, ``H1`` its measured floor -> top transmissibility and ``S_common`` the floor
+PSD common to all the segments compared (their mean). The correction has expectation zero when the
+floor is stationary (``E[S_ground] = S_common``), so ``P_cv`` estimates the same band power; it
+removes the part of ``P_top`` the floor's fluctuation explains (the coherent part, ``|H1|**2
+S_ground``), and keeps the rest (table forces, sensor noise, other floor axes). An error of ``H1``
+(the bias of a Welch estimate on a peak narrower than a bin) only enters multiplied by the small
+difference ``S_common - S_ground``, so it is of second order. The ratio of two ``P_cv`` is the
+normalised value, as the paper defines it.
 
-Since ``|H1|**2 S_ground = coherence * S_top`` bin by bin, ``P_cv`` is also
+Since ``|H1|**2 S_ground = coherence * S_top`` bin by bin, ``P_cv`` is also, up to the
+difference between the multitaper and the Welch band power of the top stage,
 ``sum_band w_i (|H1_i|**2 S_common_i + (1 - coherence_i) S_top_i)``: the floor-driven part under
 the common floor plus the part the floor does not explain (table forces, sensor noise).
 
@@ -45,7 +47,7 @@ def _band(f: np.ndarray, f_r: float) -> np.ndarray:
     return np.asarray(est.band_weights(f, band)[0])
 
 
-def band_power_cv(f: np.ndarray, p_top: np.ndarray, p_ground: np.ndarray, h1: np.ndarray,
+def band_power_cv(f: np.ndarray, top_power: float, p_ground: np.ndarray, h1: np.ndarray,
                   p_common: np.ndarray, f_r: float) -> float:
     """Ground-corrected band power ((m/s)^2) in ``f_r * 2**(+-1/6)`` (Hz).
 
@@ -53,8 +55,11 @@ def band_power_cv(f: np.ndarray, p_top: np.ndarray, p_ground: np.ndarray, h1: np
     ----------
     f : ndarray, shape (F,)
         Uniform frequencies (Hz).
-    p_top, p_ground : ndarray, shape (F,)
-        Welch PSDs of the segment's top-stage and floor velocities ((m/s)^2/Hz).
+    top_power : float
+        The segment's band power of the top-stage velocity ((m/s)^2), from the whole record
+        (:func:`.modetable.record_band_rms` squared).
+    p_ground : ndarray, shape (F,)
+        Welch PSD of the segment's floor velocity ((m/s)^2/Hz).
     h1 : ndarray of complex, shape (F,)
         The segment's H1 estimate of floor -> top velocity (dimensionless).
     p_common : ndarray, shape (F,)
@@ -63,17 +68,17 @@ def band_power_cv(f: np.ndarray, p_top: np.ndarray, p_ground: np.ndarray, h1: np
         Band centre (Hz).
     """
     w = _band(f, f_r)
-    return float(w @ p_top + w @ (np.abs(h1) ** 2 * (p_common - p_ground)))
+    return float(top_power + w @ (np.abs(h1) ** 2 * (p_common - p_ground)))
 
 
-def normalized_cv(segments: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+def normalized_cv(segments: Sequence[tuple[float, np.ndarray, np.ndarray]],
                   f: np.ndarray, f_r: float, reference: int = 0) -> list[float]:
     """Ground-corrected normalised values (dimensionless) of several segments.
 
     Parameters
     ----------
-    segments : sequence of (p_top, p_ground, h1)
-        Per segment, as in :func:`band_power_cv`, all on the grid ``f`` (Hz).
+    segments : sequence of (top_power, p_ground, h1)
+        Per segment, as in :func:`band_power_cv`, the spectra on the grid ``f`` (Hz).
     f : ndarray, shape (F,)
         Frequencies (Hz).
     f_r : float

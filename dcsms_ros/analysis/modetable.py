@@ -3,7 +3,9 @@
 Definition (robust against leakage and the exact peak bin): in the reference segment (Passive by
 default) the resonance ``f_r`` of an axis is the highest peak of the ASD of the last stage's
 velocity v_pN between 1 and 30 Hz. For every segment, ``band_rms`` is the RMS of v_pN within
-``f_r * 2**(+-1/6)`` (one-third octave centred on f_r), integrated from the Welch PSD;
+``f_r * 2**(+-1/6)`` (one-third octave centred on f_r), integrated from a multitaper PSD of the
+whole segment (:mod:`.multitaper`: the Welch PSD's kernel is wider than the band and leaks a
+sharp reference peak out of it);
 ``normalized = band_rms / band_rms(reference)`` and ``attenuation_db = -20 log10(normalized)``
 (positive: less motion than the reference). The paper measured the velocity at the resonance
 with the same excitation in every mode; a band RMS keeps that meaning while averaging over the
@@ -18,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from dcsms_ros.analysis import estimators as est
+from dcsms_ros.analysis.multitaper import band_power
 from dcsms_ros.analysis.uncertainty import band_dof
 
 #: Where the reference resonance is searched (Hz): isolation-table modes live here.
@@ -61,6 +64,14 @@ def refine_peak(f: np.ndarray, asd: np.ndarray, i: int) -> float:
 def resonance_band_rms(f: np.ndarray, psd: np.ndarray, f_r: float) -> float:
     """RMS (m/s) of a velocity PSD within one-third octave centred on ``f_r`` (Hz)."""
     return est.band_rms_around(f, psd, f_r, HALF_WIDTH_OCT)
+
+
+def record_band_rms(x: np.ndarray, fs: float, f_r: float) -> float:
+    """RMS (m/s) of the velocity record ``x`` (N,) sampled at ``fs`` Hz within one-third octave
+    centred on ``f_r`` (Hz): the Table-4 value before normalisation, from the whole record's
+    band-passed multitaper PSD (:func:`.multitaper.band_power`)."""
+    return float(np.sqrt(band_power(x, fs, f_r * 2.0 ** -HALF_WIDTH_OCT,
+                                    f_r * 2.0 ** HALF_WIDTH_OCT)))
 
 
 def resonance_band_dof(x: np.ndarray, fs: float, f_r: float) -> float:
@@ -143,6 +154,7 @@ __all__ = [
     "format_table",
     "interval",
     "normalize",
+    "record_band_rms",
     "refine_peak",
     "resonance_band_dof",
     "resonance_band_rms",

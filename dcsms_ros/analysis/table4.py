@@ -37,12 +37,13 @@ def table4(results: list[dict[str, Any]], ref_label: str, summary: Summary) -> N
         f, p = ref["arrays"][a]["f"], ref["arrays"][a]["psd"]
         f_r = modetable.resonance_frequency(f, np.sqrt(p))
         summary.resonance_hz[a] = f_r
-        base = modetable.resonance_band_rms(f, p, f_r)
+        rms = {id(r): modetable.record_band_rms(r["arrays"][a]["top"], r["json"]["fs_hz"], f_r)
+               for r in results}
+        base = rms[id(ref)]
         dof = {id(r): modetable.resonance_band_dof(r["arrays"][a]["top"], r["json"]["fs_hz"],
                                                    f_r) for r in results}
         for r in results:
-            arr = r["arrays"][a]
-            val = modetable.resonance_band_rms(arr["f"], arr["psd"], f_r)
+            val = rms[id(r)]
             norm, db = modetable.normalize(val, base)
             # the reference is 1 by definition; any other segment is an independent record
             ci = (norm, norm) if r is ref else uncertainty.ratio_interval(
@@ -51,11 +52,11 @@ def table4(results: list[dict[str, Any]], ref_label: str, summary: Summary) -> N
                                         normalized_ci=list(ci), band_dof=dof[id(r)],
                                         attenuation_db=db, normalized_plain=norm,
                                         normalized_plain_ci=list(ci), estimator=BAND_RMS)
-        _ground_corrected(results, ref, a, f_r, dof)
+        _ground_corrected(results, ref, a, f_r, dof, rms)
 
 
 def _ground_corrected(results: list[dict[str, Any]], ref: dict[str, Any], axis: str,
-                      f_r: float, dof: dict[int, float]) -> None:
+                      f_r: float, dof: dict[int, float], rms: dict[int, float]) -> None:
     """Make the ground-corrected value (:mod:`.groundnorm`) ``normalized`` on ``axis`` when
     every segment recorded the floor on the reference's frequency grid; its interval divides
     each segment's degrees of freedom by its :func:`.groundnorm.variance_ratio`."""
@@ -68,8 +69,10 @@ def _ground_corrected(results: list[dict[str, Any]], ref: dict[str, Any], axis: 
     fs = [r["json"]["fs_hz"] for r in results]
     nper = [r["json"]["nperseg"] for r in results]
     k = results.index(ref)
-    values = groundnorm.normalized_cv([(x["psd"], x["psd_bodies"]["ground"], x["tfs"][-1].h)
-                                       for x in arrs], grid, f_r, k)
+    values = groundnorm.normalized_cv([(rms[id(r)] ** 2, x["psd_bodies"]["ground"],
+                                        x["tfs"][-1].h) for r, x in zip(results, arrs,
+                                                                        strict=True)],
+                                      grid, f_r, k)
     ratios = [groundnorm.variance_ratio(grid, x["top"], x["ground"], common, f_r, s, n)
               for x, s, n in zip(arrs, fs, nper, strict=True)]
     for r, norm, ratio in zip(results, values, ratios, strict=True):

@@ -29,10 +29,10 @@ TABLE1 = Path(__file__).resolve().parents[2] / "config" / "table1.yaml"
 def test_the_correction_vanishes_when_the_floor_matches_the_common_spectrum() -> None:
     rng = np.random.default_rng(1)
     f = np.linspace(0.0, 10.0, 41)
-    top, ground = rng.uniform(1, 2, f.size), rng.uniform(1, 2, f.size)
+    ground = rng.uniform(1, 2, f.size)
     h1 = rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)
-    assert_allclose(band_power_cv(f, top, ground, h1, ground, 4.0),
-                    modetable.resonance_band_rms(f, top, 4.0) ** 2)
+    assert_allclose(band_power_cv(f, 0.37, ground, h1, ground, 4.0), 0.37)
+    assert band_power_cv(f, 0.37, ground, h1, 1.1 * ground, 4.0) > 0.37
 
 
 @pytest.mark.slow
@@ -50,11 +50,10 @@ def test_lower_scatter_and_the_models_value_over_seeds() -> None:
         for i, m in enumerate((Mode.PASSIVE, Mode.DFBC)):
             v = simulate(cfg, m, 33.0, seed=900 + 10 * s + i).velocity[int(9 * fs):]
             g, t = (np.ascontiguousarray(v[:, k, 0]) for k in (0, top))
-            f, (pg, pt, pgt), _ = est.welch_sums(g, t, fs, est.choose_nperseg(fs, t.size))
-            segs.append((pt, pg, pgt / pg))
+            f, (pg, _, pgt), _ = est.welch_sums(g, t, fs, est.choose_nperseg(fs, t.size))
+            segs.append((modetable.record_band_rms(t, fs, f_r) ** 2, pg, pgt / pg))
         corrected.append(normalized_cv(segs, f, f_r)[1])
-        plain.append(modetable.resonance_band_rms(f, segs[1][0], f_r)
-                     / modetable.resonance_band_rms(f, segs[0][0], f_r))
+        plain.append(np.sqrt(segs[1][0] / segs[0][0]))
     plain_a, cv_a = np.array(plain), np.array(corrected)
     assert cv_a.std(ddof=1) < plain_a.std(ddof=1)
     diff = cv_a - plain_a
@@ -91,10 +90,10 @@ def test_variance_ratio_predicts_the_scatter_of_the_corrected_band_power(
     plain, corrected, ratios = [], [], []
     for _ in range(400):
         g, top = _records(fs, n, fraction, rng)
-        f, (pg, pt, pgt), _ = est.welch_sums(g, top, fs, nper)
+        f, (pg, _, pgt), _ = est.welch_sums(g, top, fs, nper)
         common = np.full(f.size, 2.0 / fs)
-        plain.append(modetable.resonance_band_rms(f, pt, f_r) ** 2)
-        corrected.append(band_power_cv(f, pt, pg, pgt / pg, common, f_r))
+        plain.append(modetable.record_band_rms(top, fs, f_r) ** 2)
+        corrected.append(band_power_cv(f, plain[-1], pg, pgt / pg, common, f_r))
         ratios.append(variance_ratio(f, top, g, common, f_r, fs, nper))
     p, c = np.array(plain), np.array(corrected)
     assert abs(c.mean() / p.mean() - 1.0) < 3 * np.std(c / p.mean()) / np.sqrt(c.size)
