@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import shutil
+import sys
 import time
 from itertools import pairwise
 from pathlib import Path
@@ -32,12 +33,13 @@ ORDER = ("Passive", "FBC", "FBC+FFC", "DFBC", "DFBC+FFC")
 BEST_MAX = 0.1
 #: The demo's default configuration: the paper's experiment.
 DEFAULT_CONFIG = "config/tem_paper_fit.yaml"
-#: Default seconds analysed per mode. The TEM's Table-4 values scatter with the segment length
-#: (docs/tem.md): with 12 s the paper's order flipped in 2 of 3 seeds, with 24 s and 30 s in
-#: none of 3 (X's DFBC and DFBC+FFC, predicted only 1.3x apart, can still swap by chance). The
-#: graph runs near real time, so 24 s (~4 min); the batch engine affords 60 s.
-GRAPH_SEGMENT_S = 24.0
-BATCH_SEGMENT_S = 60.0
+#: Seconds analysed per mode, the graph's and the batch engine's alike. The values' 95 %
+#: intervals narrow as 1/sqrt(T): at 24 s their median hi/lo was 2.1-3.0 over six held-back
+#: seeds, at 60 s 1.5 (docs/tem.md); the composed lockstep graph runs the 388 s this takes
+#: at about 1.6x real time.
+SEGMENT_S = 60.0
+#: launch()'s status when a signal stopped the graph before the schedule ended.
+INTERRUPTED = 130
 #: Marker that lets a new demo replace the output of an earlier one (and nothing else).
 MARKER = ".dcsms-demo"
 
@@ -55,8 +57,8 @@ def register(subparsers: Any) -> None:
                    help="output directory: bag/, report.md, PNGs, summary.json (default "
                    "out/demo; an earlier demo there is replaced)")
     p.add_argument("--segment", type=float, default=None, metavar="S",
-                   help="simulated seconds analysed per mode (default 24 with the graph, "
-                   f"{BATCH_SEGMENT_S:g} with the batch engine; shorter segments scatter)")
+                   help=f"simulated seconds analysed per mode (default {SEGMENT_S:g}; shorter "
+                   "segments scatter more: their intervals say how much)")
     p.add_argument("--settle", type=float, default=None, metavar="S",
                    help="simulated seconds dropped after each switch (default: per mode, the "
                    "fade plus 3 time constants of the new loop's slowest pole near the analysed "
@@ -75,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     if not modes:
         raise DcsmsError("--modes: no mode given")
     if args.segment is None:
-        args.segment = BATCH_SEGMENT_S if args.engine == "batch" else GRAPH_SEGMENT_S
+        args.segment = SEGMENT_S
     if not (args.segment > 0 and (args.settle is None or args.settle >= 0)):
         raise DcsmsError("--segment must be > 0 and --settle >= 0")
     check_deploy_options(args)
@@ -160,7 +162,12 @@ def _graph(args: argparse.Namespace, cfg: Any, modes: list[Mode],
     recorded = spec.analysis_topics()
     spec = build_graph(cfg, args, "lockstep", modes[0], total, schedule,
                        observers=spec.lockstep_observed(recorded))
-    status = launch(spec, args, schedule, bag, recorded, out / "logs", True, cfg.plant.rate_hz)
+    status = launch(spec, args, schedule, bag, recorded, out / "logs", True, cfg.plant.rate_hz,
+                    interrupted_status=INTERRUPTED)
+    if status == INTERRUPTED:
+        print(f"dcsms demo: interrupted before the schedule ended; {bag} holds what was "
+              "recorded, not analysed (`dcsms analyze` reads it)", file=sys.stderr)
+        raise KeyboardInterrupt  # the CLI's exit status for an interrupted command (130)
     if status != 0:
         raise DcsmsError(f"the graph exited with status {status} (logs in {out / 'logs'})")
 
@@ -272,5 +279,5 @@ def _num(x: Any) -> str:
     return "-" if x is None else f"{float(x):.3f}"
 
 
-__all__ = ["BATCH_SEGMENT_S", "DEFAULT_CONFIG", "GRAPH_SEGMENT_S", "paper_order", "register",
+__all__ = ["DEFAULT_CONFIG", "SEGMENT_S", "paper_order", "register",
            "run"]

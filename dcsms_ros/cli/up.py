@@ -143,8 +143,13 @@ def build_graph(cfg: SystemConfig, args: argparse.Namespace, schedule: str, mode
 
 def launch(spec: GraphSpec, args: argparse.Namespace, events: Sequence[tuple[float, Mode]],
            record: Path | None, record_topics: Sequence[str] | None, log_dir: Path | None,
-           expect_finish: bool, rate_hz: float, verbose: bool = False) -> int:
-    """Run ``spec`` with the deployment options of ``args`` until a signal or its end."""
+           expect_finish: bool, rate_hz: float, verbose: bool = False,
+           interrupted_status: int | None = None) -> int:
+    """Run ``spec`` with the deployment options of ``args`` until a signal or its end.
+
+    Returns the graph's status (0 after a clean stop or finish); ``interrupted_status``, when
+    given, instead of 0 when a signal stopped the run (a run that must finish, such as the
+    demo's, is then incomplete and must not be analysed as if it were whole)."""
     log_dir = log_dir or Path(tempfile.mkdtemp(prefix="dcsms-up-"))
     how = Deployment(composed=args.composed, rt_priority=args.rt_priority, record=record,
                      record_topics=record_topics, recorder=args.recorder, log_dir=log_dir,
@@ -158,10 +163,15 @@ def launch(spec: GraphSpec, args: argparse.Namespace, events: Sequence[tuple[flo
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        return run_graph(spec, how, lambda: stop["signal"] != 0, rate_hz, announce=lambda k: print(
-            f"dcsms up: {spec.schedule}, {'composed, ' if args.composed else ''}{k} "
-            f"process{'es' if k > 1 else ''}, namespace {spec.namespace}, logs in {log_dir}",
-            flush=True))
+        status = run_graph(spec, how, lambda: stop["signal"] != 0, rate_hz,
+                           announce=lambda k: print(
+                               f"dcsms up: {spec.schedule}, "
+                               f"{'composed, ' if args.composed else ''}{k} "
+                               f"process{'es' if k > 1 else ''}, namespace {spec.namespace}, "
+                               f"logs in {log_dir}", flush=True))
+        if status == 0 and stop["signal"] and interrupted_status is not None:
+            return interrupted_status
+        return status
     finally:
         for s, h in old.items():
             signal.signal(s, h)
