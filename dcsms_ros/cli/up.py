@@ -125,13 +125,15 @@ def build_graph(cfg: SystemConfig, args: argparse.Namespace, schedule: str, mode
                 observers: Sequence[str] = ()) -> GraphSpec:
     """The graph of a run from the common options (namespace, allow-unstable, ground).
 
-    A run with a duration waits for this process's reader of ``/diagnostics`` too: a short run
-    could otherwise end before the supervisor hears the plant say it finished.
+    A run with a duration waits for this process's readers of ``plant/finished`` and
+    ``/diagnostics`` too: a short run could otherwise end before the supervisor hears the plant
+    say it finished (and its last report).
     """
     if events and schedule == "lockstep" and events[0][0] * cfg.plant.rate_hz < 0.5:
         raise DcsmsError("--schedule: a switch at t=0 is the initial mode; use --mode")
     if duration_s > 0:
-        observers = [*observers, topics.DIAGNOSTICS]
+        finished = topics.Names(topics.check_namespace(args.namespace)).plant_finished
+        observers = [*observers, finished, topics.DIAGNOSTICS]
     return define_graph(cfg, schedule=schedule, mode=mode, namespace=args.namespace,
                         duration_s=duration_s, observers=observers,
                         ground_from=getattr(args, "ground_from", "") or "",

@@ -38,6 +38,7 @@ from rclpy.node import Node
 
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, GraphSpec, NodeSpec, spec_from_dict
+from dcsms_ros.nodes.plant_simulator import PlantSimulatorNode
 from dcsms_ros.nodes.recorder import Recorder
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
 from dcsms_ros.ros.hotpath import DrivenContext
@@ -88,12 +89,12 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
             loop.start(rt_priority)
             if loop.rt_warning:
                 nodes[-1].get_logger().warning(loop.rt_warning)
-            plant = next((nd for nd in nodes if hasattr(nd, "barrier")), None)
+            plant = next((nd for nd in nodes if isinstance(nd, PlantSimulatorNode)), None)
 
             def done() -> bool:
                 if loop.error is not None:
                     raise loop.error
-                return bool(ros.stop) or getattr(plant, "finished", False)
+                return bool(ros.stop) or (plant is not None and plant.finished)
 
             spin_until(executor, done)
         except DcsmsError as exc:

@@ -39,12 +39,11 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from rcl_interfaces.msg import ParameterEvent
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import qos_profile_parameter_events
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Header, String
+from std_msgs.msg import Header, Int64, String
 from std_srvs.srv import Trigger
 
 from dcsms_ros.cdr import (
@@ -67,6 +66,7 @@ from dcsms_ros.nodes.mode_switch_clients import ControllerClients
 from dcsms_ros.protocols.superfeed import SupervisedFeed
 from dcsms_ros.protocols.tripfeed import TripFeed
 from dcsms_ros.ros import qos
+from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.msgs import node_status, sample_ns, to_stamp
 from dcsms_ros.ros.params import (
@@ -119,14 +119,16 @@ class ModeSwitchNode(Node):
         self.trip_at = (0, 0)
         self.last_result = "start"
         self._switch_lock = threading.Lock()
-        self._lock = threading.RLock()  # trip state: hot loop, timer, reset service
+        self.hot = HotPath(self)
+        self._lock = self.hot.lock  # trip state: hot loop, timer, reset service
         services = ReentrantCallbackGroup()
         self.pub_mode = self.create_publisher(String, topics.LOCAL.mode, qos.events())
         self.pub_config = self.create_publisher(String, topics.LOCAL.config, qos.latched())
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         self.ctl = ControllerClients(self, self.controllers, services)
-        self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics,
-                                 qos.status(), callback_group=services)
+        for c in self.controllers:
+            self.create_subscription(Int64, topics.LOCAL.boot(c), partial(self._on_boot, c),
+                                     qos.latched(), callback_group=services)
         self.create_subscription(ParameterEvent, topics.PARAMETER_EVENTS, self._on_param_event,
                                  qos_profile_parameter_events, callback_group=services)
         for m in ALL_MODES:
@@ -143,7 +145,6 @@ class ModeSwitchNode(Node):
         self._forces = BatchReader(JOINT_STATE)
         self._twists = [BatchReader(TWIST_STAMPED) for _ in range(n + 1)]  # stages, ground
         self._cols = [2] if cfg.plant.dof == 1 else list(range(6))  # z, or the whole twist
-        self.hot = HotPath(self, self._lock)
         self._trip_subs: list[Any] = []
         self._asked = -1  # lockstep: the checkpoint stamp the plant waits for
         self._answered = -1
@@ -168,12 +169,10 @@ class ModeSwitchNode(Node):
                 self.hot.subscribe(Header, topics.LOCAL.trip_check, self._on_check,
                                     qos.stream_sub(True), raw=True)
                 self.hot.set_tick(self._check_tick)
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.trip_enabled and self.pub_checked is None:
-            self.create_timer(0.05, self._judge_locked,
-                              callback_group=MutuallyExclusiveCallbackGroup(), clock=steady)
-        self.create_timer(0.5, self._reconcile, callback_group=services, clock=steady)
-        self.create_timer(1.0, self._report, clock=steady)
+            steady_timer(self, 0.05, self._judge_locked, MutuallyExclusiveCallbackGroup())
+        steady_timer(self, 0.5, self._reconcile, services)
+        steady_timer(self, 1.0, self._report)
         self._publish_mode()
         self._publish_config()
         self.get_logger().info(f"mode {self.mode.label}; controllers {self.controllers}"
@@ -216,7 +215,7 @@ class ModeSwitchNode(Node):
             return
         got = {p.name: parameter_value_to_python(p.value) for p in msg.changed_parameters
                if p.name.startswith(MUTABLE_PREFIXES) and p.name in self.params.names}
-        got = {k: (list(v) if isinstance(v, (list, tuple)) or hasattr(v, "tolist") else v)
+        got = {k: (list(v) if isinstance(v, (list, tuple)) else v)
                for k, v in got.items()}
         if got and any(self.guard.flat.get(k) != v for k, v in got.items()):
             self.guard.flat.update(got)
@@ -301,9 +300,9 @@ class ModeSwitchNode(Node):
         if not self._switch_lock.locked():
             self.ctl.reconcile(self._want)
 
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        if not self._switch_lock.locked():  # a switch tells everyone anyway
-            self.ctl.on_diagnostics(msg, self._want)
+    def _on_boot(self, c: str, msg: Int64) -> None:
+        # a switch in progress tells everyone anyway
+        self.ctl.on_boot(c, msg.data, self._want, quiet=self._switch_lock.locked())
 
     # -- trip --------------------------------------------------------------------------------
     def _drain(self) -> None:

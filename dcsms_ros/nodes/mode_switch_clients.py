@@ -1,9 +1,9 @@
 """mode_switch's side of the controllers' ``~/enable`` services.
 
 :class:`ControllerClients` calls ``enable(state)`` on several controllers at once and collects
-who confirmed; it tells a controller whose service (re)appears, or whose ``boot_ns`` in its
-diagnostics changes (a killed process restarted before its old service expired), the state the
-current mode wants, so it comes back in the current mode, fading in.
+who confirmed; it tells a controller whose service (re)appears, or whose boot id on
+``<controller>/boot`` changes (a killed process restarted before its old service expired), the
+state the current mode wants, so it comes back in the current mode, fading in.
 """
 
 from __future__ import annotations
@@ -11,7 +11,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import CallbackGroup
 from rclpy.node import Node
 from std_srvs.srv import SetBool
@@ -28,8 +27,8 @@ class ControllerClients:
                                               callback_group=group) for c in controllers}
         self.ready = dict.fromkeys(controllers, False)
         # a controller killed and restarted keeps its enable service "ready" (DDS liveliness
-        # lease): its new boot id in the diagnostics is what tells us it came back
-        self.boots: dict[str, str] = {}
+        # lease): its new boot id is what tells us it came back
+        self.boots: dict[str, int] = {}
         self.names = topics.Names(node.get_namespace())
 
     def call_all(self, states: dict[str, bool], timeout_s: float,
@@ -85,19 +84,14 @@ class ControllerClients:
                 self.node.get_logger().warning(f"{c} left the graph (enable service gone)")
             self.ready[c] = ready
 
-    def on_diagnostics(self, msg: DiagnosticArray, want: Callable[[str], bool]) -> None:
-        """A controller reporting a new boot id is a new process: tell it ``want(c)``."""
-        for st in msg.status:
-            c = self.names.local_status(st.name)
-            if c not in self.clients:
-                continue
-            boot = next((kv.value for kv in st.values if kv.key == "boot_ns"), None)
-            if boot is None or self.boots.get(c) == boot:
-                continue
-            known = c in self.boots
-            self.boots[c] = boot
-            if known:  # a new process under the same name: give it the current mode's state
-                self.tell(c, want(c), "restarted")
+    def on_boot(self, c: str, boot_ns: int, want: Callable[[str], bool],
+                quiet: bool = False) -> None:
+        """Controller ``c`` started at ``boot_ns`` (ns since the epoch): a new value under a
+        known name is a new process, told ``want(c)`` unless ``quiet``."""
+        known = self.boots.get(c)
+        self.boots[c] = boot_ns
+        if known is not None and known != boot_ns and not quiet:
+            self.tell(c, want(c), "restarted")
 
 
 __all__ = ["ControllerClients"]

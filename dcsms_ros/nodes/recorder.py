@@ -45,6 +45,7 @@ from dcsms_ros.analysis.bagio import BagWriter
 from dcsms_ros.analysis.gaps import Recording, TopicStats
 from dcsms_ros.cdr import CLOCK, read_stamp
 from dcsms_ros.errors import BagError, DcsmsError
+from dcsms_ros.ros.connectivity import has_reader
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
 
 NODE_NAME = "dcsms_recorder"
@@ -311,8 +312,7 @@ def record(out: str, topics: Sequence[str] | None = None, storage: str | None = 
 def recorder_ready(node: Node, topics: Sequence[str]) -> bool:
     """True when the recorder subscribes to every topic in ``topics`` (call from a node of the
     graph, e.g. the lockstep plant, before its first step so no sample is lost)."""
-    return all(any(i.node_name == NODE_NAME for i in node.get_subscriptions_info_by_topic(t))
-               for t in topics)
+    return all(has_reader(node, t, NODE_NAME) for t in topics)
 
 
 def main(args: list[str] | None = None) -> int:

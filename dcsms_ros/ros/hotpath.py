@@ -79,14 +79,15 @@ class HotPath:
     node : Node
         Owner of the subscriptions (they are its entities: graph introspection and
         ``destroy_node`` see them as usual).
-    lock : threading.Lock or RLock
+    lock : threading.Lock or RLock, optional
         Held while a handler (or ``tick``) runs; the node's executor callbacks that touch the
-        same state take it too.
+        same state take it too (:attr:`lock`). Default: a new RLock, so a node file needs no
+        threading of its own.
     """
 
-    def __init__(self, node: Node, lock: Any) -> None:
+    def __init__(self, node: Node, lock: Any = None) -> None:
         self.node = node
-        self.lock = lock
+        self.lock = lock if lock is not None else threading.RLock()
         self.on = enabled()
         self._group = DetachedGroup()
         self.subs: list[tuple[Subscription, Callable[[Any], None]]] = []
