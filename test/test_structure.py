@@ -285,10 +285,6 @@ NODE_EXCEPTIONS: dict[str, str] = {
     "dcsms_ros.nodes.mode_switch:sleep":
         "_on_check with the hot path off (DCSMS_HOT_PATH=0, the benchmark's baseline) waits "
         "in the executor callback for the checkpoint's samples still in flight",
-    "dcsms_ros.nodes.mode_switch_clients:sleep":
-        "call_all waits for the enable services' replies by polling the futures from the "
-        "blocked caller (see mode_switch:threads); a done-callback would need a free executor "
-        "thread, which the composed graph's three may not have",
 }
 
 

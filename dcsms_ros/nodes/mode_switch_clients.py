@@ -8,7 +8,6 @@ state the current mode wants, so it comes back in the current mode, fading in.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 
 from rclpy.callback_groups import CallbackGroup
@@ -16,6 +15,7 @@ from rclpy.node import Node
 from std_srvs.srv import SetBool
 
 from dcsms_ros.core import topics
+from dcsms_ros.ros.services import call_together
 
 
 class ControllerClients:
@@ -23,13 +23,13 @@ class ControllerClients:
 
     def __init__(self, node: Node, controllers: list[str], group: CallbackGroup) -> None:
         self.node = node
-        self.clients = {c: node.create_client(SetBool, topics.LOCAL.enable(c),
-                                              callback_group=group) for c in controllers}
+        names = topics.Names(node.get_namespace())  # full names: they are in the messages
+        self.clients = {c: node.create_client(SetBool, names.enable(c), callback_group=group)
+                        for c in controllers}
         self.ready = dict.fromkeys(controllers, False)
         # a controller killed and restarted keeps its enable service "ready" (DDS liveliness
         # lease): its new boot id is what tells us it came back
         self.boots: dict[str, int] = {}
-        self.names = topics.Names(node.get_namespace())
 
     def call_all(self, states: dict[str, bool], timeout_s: float,
                  wait_for_service: bool = True) -> dict[str, tuple[bool, str]]:
@@ -38,35 +38,9 @@ class ControllerClients:
         A controller whose service is not there is only waited for if ``wait_for_service``
         (a trip does not wait); its message starts with ``not available``.
         """
-        deadline = time.monotonic() + timeout_s
-        out: dict[str, tuple[bool, str]] = {}
-        futures = {}
-        pending = list(states)
-        # every ready controller gets its request at once; the others are waited for in turn
-        while pending:
-            for c in [c for c in pending if self.clients[c].service_is_ready()]:
-                futures[c] = self.clients[c].call_async(SetBool.Request(data=states[c]))
-                pending.remove(c)
-            if not pending:
-                break
-            if not wait_for_service or time.monotonic() >= deadline:
-                for c in pending:
-                    out[c] = (False, f"not available (no service {self.names.enable(c)})")
-                break
-            time.sleep(0.01)
-        # a controller that was ready gets a fair chance to answer even after a long wait
-        deadline = max(deadline, time.monotonic() + 0.25)
-        for c, fut in futures.items():
-            while not fut.done() and time.monotonic() < deadline:
-                time.sleep(0.0005)
-            if not fut.done():
-                fut.cancel()
-                out[c] = (False, f"no reply within {timeout_s:g} s")
-            elif fut.result() is None or not fut.result().success:
-                out[c] = (False, fut.result().message if fut.result() else "call failed")
-            else:
-                out[c] = (True, fut.result().message)
-        return out
+        return call_together(self.clients, {c: SetBool.Request(data=on)
+                                            for c, on in states.items()},
+                             timeout_s, wait_for_service)
 
     def tell(self, c: str, state: bool, why: str) -> None:
         """Send ``enable(state)`` to ``c`` without waiting; the answer is logged."""
