@@ -282,9 +282,6 @@ NODE_EXCEPTIONS: dict[str, str] = {
         "_switch_lock serialises a user's switch, a trip and the supervisor's switch, which "
         "run on executor threads and on the hot thread (lockstep trip: the controllers are "
         "disabled before the plant hears the verdict, so the switch must block there)",
-    "dcsms_ros.nodes.mode_switch:sleep":
-        "_on_check with the hot path off (DCSMS_HOT_PATH=0, the benchmark's baseline) waits "
-        "in the executor callback for the checkpoint's samples still in flight",
 }
 
 

@@ -42,6 +42,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import qos_profile_parameter_events
+from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header, Int64, String
 from std_srvs.srv import Trigger
@@ -149,6 +150,8 @@ class ModeSwitchNode(Node):
         self._asked = -1  # lockstep: the checkpoint stamp the plant waits for
         self._answered = -1
         self.pub_checked = None
+        self._retry: Timer | None = None
+        self._retry_until = 0.0
         if self.trip_enabled:
             # reliable and (lockstep) transient local: every sample from 0, in order; no
             # executor wakes per sample: the queues are drained in blocks
@@ -168,6 +171,9 @@ class ModeSwitchNode(Node):
                                                          qos.stream_pub(True))
                 self.hot.subscribe(Header, topics.LOCAL.trip_check, self._on_check,
                                     qos.stream_sub(True), raw=True)
+                if not self.hot.on:  # the executor retries what the hot loop's tick would
+                    self._retry = steady_timer(self, 0.0002, self._retry_check)
+                    self._retry.cancel()
                 self.hot.set_tick(self._check_tick)
         if self.trip_enabled and self.pub_checked is None:
             steady_timer(self, 0.05, self._judge_locked, MutuallyExclusiveCallbackGroup())
@@ -392,10 +398,16 @@ class ModeSwitchNode(Node):
             self._answer(stamp)  # a repeated question (retransmission)
             return
         self._asked = stamp
-        end = time.monotonic() + self.params.cfg.control.lockstep_timeout_s
-        # hot path off (an executor callback): wait here for the samples still in flight
-        while self._check_tick() is not None and not self.hot.on and time.monotonic() < end:
-            time.sleep(0.0002)
+        if self._check_tick() is not None and self._retry is not None:
+            # hot path off (no tick): look again for the samples still in flight, until the
+            # plant's lockstep timeout (it asks again then)
+            self._retry_until = time.monotonic() + self.params.cfg.control.lockstep_timeout_s
+            self._retry.reset()
+
+    def _retry_check(self) -> None:
+        if self._check_tick() is None or time.monotonic() >= self._retry_until:
+            assert self._retry is not None
+            self._retry.cancel()
 
     def _check_tick(self) -> float | None:
         """Judge the asked checkpoint once every stage's samples through it are in; else try
