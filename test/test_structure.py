@@ -31,7 +31,7 @@ ALLOWED: dict[str, set[str]] = {
     "analysis": {"core", "errors", "jsonutil", "cdr"},
     "design": {"core", "analysis", "errors"},
     "graph": {"core", "errors"},
-    "ros": {"core", "analysis", "protocols", "graph", "errors", "jsonutil", "cdr", "rosenv"},
+    "ros": {"core", "protocols", "graph", "errors", "jsonutil", "cdr", "rosenv"},
     "nodes": {"ros", "core", "analysis", "protocols", "graph", "errors", "jsonutil", "cdr",
               "rosenv"},
 }
