@@ -3,7 +3,7 @@
 The graph is :func:`dcsms_ros.graph.define_graph` of the configuration (``--config`` plus every
 ``--set``), in namespace ``--namespace``; it runs one process per node (the ``ros2 run``
 deployment, default) or ``--composed`` (every node in one process, one driver thread for the
-per-sample cycle); :mod:`dcsms_ros.nodes.deploy` starts and stops it. Ctrl-C or SIGTERM: every
+per-sample cycle); :mod:`dcsms_ros.cli.deploy` starts and stops it. Ctrl-C or SIGTERM: every
 process gets SIGINT, then SIGTERM and SIGKILL after a timeout; exit status 0 and no traceback.
 Node logs go to files in ``--log-dir`` (shown at start) unless ``--verbose``.
 """
@@ -25,12 +25,12 @@ from dcsms_ros.cli.common import (
     print_model_check,
     refuse_unstable_start,
 )
+from dcsms_ros.cli.deploy import RECORDERS, Deployment, run_graph
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode, parse_mode
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import GraphSpec, define_graph
-from dcsms_ros.nodes.deploy import RECORDERS, Deployment, run_graph
 
 
 def add_deploy_options(p: argparse.ArgumentParser) -> None:
@@ -125,13 +125,15 @@ def build_graph(cfg: SystemConfig, args: argparse.Namespace, schedule: str, mode
                 observers: Sequence[str] = ()) -> GraphSpec:
     """The graph of a run from the common options (namespace, allow-unstable, ground).
 
-    A run with a duration waits for this process's reader of ``/diagnostics`` too: a short run
-    could otherwise end before the supervisor hears the plant say it finished.
+    A run with a duration waits for this process's readers of ``plant/finished`` and
+    ``/diagnostics`` too: a short run could otherwise end before the supervisor hears the plant
+    say it finished (and its last report).
     """
     if events and schedule == "lockstep" and events[0][0] * cfg.plant.rate_hz < 0.5:
         raise DcsmsError("--schedule: a switch at t=0 is the initial mode; use --mode")
     if duration_s > 0:
-        observers = [*observers, topics.DIAGNOSTICS]
+        finished = topics.Names(topics.check_namespace(args.namespace)).plant_finished
+        observers = [*observers, finished, topics.DIAGNOSTICS]
     return define_graph(cfg, schedule=schedule, mode=mode, namespace=args.namespace,
                         duration_s=duration_s, observers=observers,
                         ground_from=getattr(args, "ground_from", "") or "",

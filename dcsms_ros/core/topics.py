@@ -93,6 +93,18 @@ class Names:
         return self._join("supervisor/state")
 
     @property
+    def plant_held(self) -> str:
+        """std_msgs/Int64, transient local depth 1, plant -> ``dcsms up`` (lockstep): the plant
+        holds before sample ``data`` (its ``hold_at_s``) until the scheduled switch is made."""
+        return self._join("plant/held")
+
+    @property
+    def plant_finished(self) -> str:
+        """std_msgs/Bool, transient local depth 1: True once the plant stepped its last sample
+        (``duration_s``), so a supervisor tells a finished run from a crash."""
+        return self._join("plant/finished")
+
+    @property
     def trip_check(self) -> str:
         """std_msgs/Header, plant -> mode_switch (lockstep): judge the trip checkpoint that
         ends with the sample stamped ``stamp``."""
@@ -125,6 +137,11 @@ class Names:
     def enable(self, controller: str) -> str:
         """std_srvs/SetBool: enable or disable one controller (gains fade in and out)."""
         return self._join(f"{controller}/enable")
+
+    def boot(self, controller: str) -> str:
+        """std_msgs/Int64, transient local depth 1: when the controller's process started (ns
+        since the epoch); a new value under the same name is a restarted process."""
+        return self._join(f"{controller}/boot")
 
     def set_parameters(self, node: str) -> str:
         """rcl_interfaces/SetParameters of node ``node`` of the graph."""

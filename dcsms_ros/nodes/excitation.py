@@ -20,13 +20,11 @@ excitation and refuses a start until the supervisor re-engages or the latch is r
 
 from __future__ import annotations
 
-import threading
 from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import WrenchStamped
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
@@ -38,17 +36,18 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.excitation import Excitation, check_specs, parse_spec
 from dcsms_ros.core.supervisor import TRIPPED_STATES
 from dcsms_ros.errors import ConfigError
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import node_status, to_stamp
-from dcsms_ros.nodes.params import (
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.msgs import node_status, to_stamp
+from dcsms_ros.ros.params import (
     NodeConfig,
     answerer,
     declare_local,
     declare_observed,
     declare_schedule,
 )
-from dcsms_ros.nodes.runtime import Stoppable, main_for
+from dcsms_ros.ros.runtime import Stoppable, main_for
 
 
 class ExcitationNode(Node, Stoppable):
@@ -57,8 +56,8 @@ class ExcitationNode(Node, Stoppable):
     def __init__(self, node_name: str = topics.EXCITATION_ID, **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)
         super().__init__(node_name, **kwargs)
-        self._lock = threading.RLock()
-        self.hot = HotPath(self, self._lock)
+        self.hot = HotPath(self)
+        self._lock = self.hot.lock
         self.params = NodeConfig(self, lambda n: n == "disturbance.seed")
         cfg = self.params.cfg
         self.lockstep = declare_schedule(self) == "lockstep"
@@ -101,7 +100,7 @@ class ExcitationNode(Node, Stoppable):
         self.create_subscription(String, topics.LOCAL.supervisor_state, self._on_state,
                                  qos.events())
         self.create_service(SetBool, "~/enable", self._on_enable)
-        self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        steady_timer(self, 1.0, self._report)
         self.get_logger().info(f"excitation {', '.join(s.text for s in self.specs)} on "
                                f"{self.pub.topic_name}, {'active' if start else 'inactive'}")
         self.hot.start()

@@ -6,7 +6,7 @@ Services (all ``std_srvs/Trigger``): ``set_mode/<passive|fbc|ffc|fbc_ffc|dfbc|df
 the old or the new mode enables; if one does not confirm within ``switch_timeout_s``, every
 controller that did is set back and the response names the one that failed. A switch into a
 mode the model of the running configuration calls unstable is refused with the pole
-(:mod:`.stability`; ``allow_unstable`` lets it through). The mode label is on ``mode``
+(:mod:`dcsms_ros.ros.stability`; ``allow_unstable`` lets it through). The mode label is on ``mode``
 (transient local, depth 1).
 
 Supervisor (``supervisor.enabled``, the default; :mod:`dcsms_ros.core.supervisor`, fed by
@@ -39,12 +39,12 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from rcl_interfaces.msg import ParameterEvent
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import qos_profile_parameter_events
+from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Header, String
+from std_msgs.msg import Header, Int64, String
 from std_srvs.srv import Trigger
 
 from dcsms_ros.cdr import (
@@ -63,21 +63,22 @@ from dcsms_ros.core.supervision import LazyGains, make_supervisor, settings_from
 from dcsms_ros.core.supervisor import CheckpointFeed, State, Transition
 from dcsms_ros.core.trip import TripChecker
 from dcsms_ros.errors import ConfigError, ModeError
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import node_status, sample_ns, to_stamp
-from dcsms_ros.nodes.params import (
+from dcsms_ros.nodes.mode_switch_clients import ControllerClients
+from dcsms_ros.protocols.superfeed import SupervisedFeed
+from dcsms_ros.protocols.tripfeed import TripFeed
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.msgs import node_status, sample_ns, to_stamp
+from dcsms_ros.ros.params import (
     MUTABLE_PREFIXES,
     SELECTORS,
     NodeConfig,
     declare_local,
     declare_schedule,
 )
-from dcsms_ros.nodes.runtime import main_for
-from dcsms_ros.nodes.stability import StabilityGuard
-from dcsms_ros.nodes.switching import ControllerClients
-from dcsms_ros.protocols.superfeed import SupervisedFeed
-from dcsms_ros.protocols.tripfeed import TripFeed
+from dcsms_ros.ros.runtime import main_for
+from dcsms_ros.ros.stability import StabilityGuard
 
 #: Reader depth of the trip monitor's velocity streams (samples).
 TRIP_DEPTH = 4000
@@ -119,14 +120,16 @@ class ModeSwitchNode(Node):
         self.trip_at = (0, 0)
         self.last_result = "start"
         self._switch_lock = threading.Lock()
-        self._lock = threading.RLock()  # trip state: hot loop, timer, reset service
+        self.hot = HotPath(self)
+        self._lock = self.hot.lock  # trip state: hot loop, timer, reset service
         services = ReentrantCallbackGroup()
         self.pub_mode = self.create_publisher(String, topics.LOCAL.mode, qos.events())
         self.pub_config = self.create_publisher(String, topics.LOCAL.config, qos.latched())
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         self.ctl = ControllerClients(self, self.controllers, services)
-        self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics,
-                                 qos.status(), callback_group=services)
+        for c in self.controllers:
+            self.create_subscription(Int64, topics.LOCAL.boot(c), partial(self._on_boot, c),
+                                     qos.latched(), callback_group=services)
         self.create_subscription(ParameterEvent, topics.PARAMETER_EVENTS, self._on_param_event,
                                  qos_profile_parameter_events, callback_group=services)
         for m in ALL_MODES:
@@ -143,11 +146,12 @@ class ModeSwitchNode(Node):
         self._forces = BatchReader(JOINT_STATE)
         self._twists = [BatchReader(TWIST_STAMPED) for _ in range(n + 1)]  # stages, ground
         self._cols = [2] if cfg.plant.dof == 1 else list(range(6))  # z, or the whole twist
-        self.hot = HotPath(self, self._lock)
         self._trip_subs: list[Any] = []
         self._asked = -1  # lockstep: the checkpoint stamp the plant waits for
         self._answered = -1
         self.pub_checked = None
+        self._retry: Timer | None = None
+        self._retry_until = 0.0
         if self.trip_enabled:
             # reliable and (lockstep) transient local: every sample from 0, in order; no
             # executor wakes per sample: the queues are drained in blocks
@@ -167,13 +171,14 @@ class ModeSwitchNode(Node):
                                                          qos.stream_pub(True))
                 self.hot.subscribe(Header, topics.LOCAL.trip_check, self._on_check,
                                     qos.stream_sub(True), raw=True)
+                if not self.hot.on:  # the executor retries what the hot loop's tick would
+                    self._retry = steady_timer(self, 0.0002, self._retry_check)
+                    self._retry.cancel()
                 self.hot.set_tick(self._check_tick)
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.trip_enabled and self.pub_checked is None:
-            self.create_timer(0.05, self._judge_locked,
-                              callback_group=MutuallyExclusiveCallbackGroup(), clock=steady)
-        self.create_timer(0.5, self._reconcile, callback_group=services, clock=steady)
-        self.create_timer(1.0, self._report, clock=steady)
+            steady_timer(self, 0.05, self._judge_locked, MutuallyExclusiveCallbackGroup())
+        steady_timer(self, 0.5, self._reconcile, services)
+        steady_timer(self, 1.0, self._report)
         self._publish_mode()
         self._publish_config()
         self.get_logger().info(f"mode {self.mode.label}; controllers {self.controllers}"
@@ -216,7 +221,7 @@ class ModeSwitchNode(Node):
             return
         got = {p.name: parameter_value_to_python(p.value) for p in msg.changed_parameters
                if p.name.startswith(MUTABLE_PREFIXES) and p.name in self.params.names}
-        got = {k: (list(v) if isinstance(v, (list, tuple)) or hasattr(v, "tolist") else v)
+        got = {k: (list(v) if isinstance(v, (list, tuple)) else v)
                for k, v in got.items()}
         if got and any(self.guard.flat.get(k) != v for k, v in got.items()):
             self.guard.flat.update(got)
@@ -301,9 +306,9 @@ class ModeSwitchNode(Node):
         if not self._switch_lock.locked():
             self.ctl.reconcile(self._want)
 
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        if not self._switch_lock.locked():  # a switch tells everyone anyway
-            self.ctl.on_diagnostics(msg, self._want)
+    def _on_boot(self, c: str, msg: Int64) -> None:
+        # a switch in progress tells everyone anyway
+        self.ctl.on_boot(c, msg.data, self._want, quiet=self._switch_lock.locked())
 
     # -- trip --------------------------------------------------------------------------------
     def _drain(self) -> None:
@@ -393,10 +398,16 @@ class ModeSwitchNode(Node):
             self._answer(stamp)  # a repeated question (retransmission)
             return
         self._asked = stamp
-        end = time.monotonic() + self.params.cfg.control.lockstep_timeout_s
-        # hot path off (an executor callback): wait here for the samples still in flight
-        while self._check_tick() is not None and not self.hot.on and time.monotonic() < end:
-            time.sleep(0.0002)
+        if self._check_tick() is not None and self._retry is not None:
+            # hot path off (no tick): look again for the samples still in flight, until the
+            # plant's lockstep timeout (it asks again then)
+            self._retry_until = time.monotonic() + self.params.cfg.control.lockstep_timeout_s
+            self._retry.reset()
+
+    def _retry_check(self) -> None:
+        if self._check_tick() is None or time.monotonic() >= self._retry_until:
+            assert self._retry is not None
+            self._retry.cancel()
 
     def _check_tick(self) -> float | None:
         """Judge the asked checkpoint once every stage's samples through it are in; else try

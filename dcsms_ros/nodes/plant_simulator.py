@@ -17,13 +17,12 @@ graph's namespace). Two schedules (parameter ``schedule``):
   (:class:`~dcsms_ros.protocols.pacer.HeldInputs`: older than ``control.input_timeout_s`` is
   zero).
 
-Startup handshake (:mod:`.plant_io`): sample 0 is published only once the graph is connected,
-or after ``handshake_timeout_s``.
+Startup handshake (:mod:`.plant_simulator_io`): sample 0 is published only once the graph is
+connected, or after ``handshake_timeout_s``.
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from functools import partial
 from typing import Any
@@ -40,14 +39,16 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.core.trip import check_samples
-from dcsms_ros.nodes import plant_io, qos
-from dcsms_ros.nodes.guard import FORCE_LIMIT_FACTOR, InputGuard
-from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.params import SELECTORS, NodeConfig, declare_schedule
-from dcsms_ros.nodes.plant_options import declare_plant_options, replayed_ground
-from dcsms_ros.nodes.runtime import Stoppable, main_for
+from dcsms_ros.nodes import plant_simulator_io as plant_io
+from dcsms_ros.nodes.plant_simulator_options import declare_plant_options, replayed_ground
 from dcsms_ros.protocols.barrier import Action, LockstepBarrier
 from dcsms_ros.protocols.pacer import HeldInputs, Pacer
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.guard import FORCE_LIMIT_FACTOR, InputGuard
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.params import SELECTORS, NodeConfig, declare_schedule
+from dcsms_ros.ros.runtime import Stoppable, main_for
 
 #: Barrier participant of the trip checkpoints (mode_switch's verdicts).
 TRIP = "trip"
@@ -84,8 +85,8 @@ class PlantSimulatorNode(Node, Stoppable):
         self.held = HeldInputs(self.controllers, cfg.control.input_timeout_s, self._zero)
         # forces are taken by the hot loop (hotpath.py); the executor keeps handshake,
         # lockstep timeouts/retransmissions and reports, under the same lock
-        self._lock = threading.RLock()
-        self.hot = HotPath(self, self._lock)
+        self.hot = HotPath(self)
+        self._lock = self.hot.lock
         self.io = plant_io.PlantIO(self, self.sim, gate)
         # real time: the forces are held values, so the hot thread does not wake for each one:
         # it drains them at every sample (arrival times from the DDS reception stamps)
@@ -109,9 +110,9 @@ class PlantSimulatorNode(Node, Stoppable):
         # the executor's timer runs the handshake; then the hot loop steps (real time) or
         # pumps and watches the barrier's deadlines (lockstep), unless the hot path is off
         tick = 1.0 / self.rate if not self.lockstep and not self.hot.on else 0.005
-        self._tick_timer = self.create_timer(tick, self._tick_locked, clock=plant_io.STEADY)
+        self._tick_timer = steady_timer(self, tick, self._tick_locked)
         self.hot.set_tick(self._hot_tick)
-        self.create_timer(opts.status_period_s, self.io.report, clock=plant_io.STEADY)
+        steady_timer(self, opts.status_period_s, self.io.report)
         self.get_logger().info(
             f"{self.schedule} at {self.rate:g} Hz, {cfg.plant.num_stages} stages "
             f"({cfg.plant.fidelity}), controllers {self.controllers}"
@@ -203,6 +204,7 @@ class PlantSimulatorNode(Node, Stoppable):
             if not self.barrier.may_publish(self.sim.k):
                 if not self._waiting_hold:  # tell the supervisor at once: it switches now
                     self._waiting_hold = True
+                    self.io.holding(self.sim.k)
                     self.io.report()
                 return
             ns = self.io.publish_sample(self.sim.k)

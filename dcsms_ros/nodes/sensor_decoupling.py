@@ -12,13 +12,11 @@ turns into a zero twist for that body (counted).
 
 from __future__ import annotations
 
-import threading
 from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
@@ -26,18 +24,19 @@ from sensor_msgs.msg import JointState
 from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, StampedWriter
 from dcsms_ros.core import topics
 from dcsms_ros.core.decoupling import Decoupler
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
-from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import node_status, to_stamp
-from dcsms_ros.nodes.params import (
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.msgs import node_status, to_stamp
+from dcsms_ros.ros.params import (
     SELECTORS,
     NodeConfig,
     answerer,
     declare_observed,
     declare_schedule,
 )
-from dcsms_ros.nodes.runtime import main_for
+from dcsms_ros.ros.runtime import main_for
 
 
 class SensorDecouplingNode(Node):
@@ -64,14 +63,14 @@ class SensorDecouplingNode(Node):
                                            qos.stream_pub(lockstep, durable=True))
                      for b in self.bodies]
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
-        self.hot = HotPath(self, threading.Lock())  # _on_raw runs on the hot thread
+        self.hot = HotPath(self)  # _on_raw runs on the hot thread, under the path's lock
         self.hot.subscribe(JointState, topics.LOCAL.sensors_raw, self._on_raw,
                            qos.stream_sub(lockstep), raw=True)
         # lockstep: the first sample is answered only once every reader is matched
         self.answers = answerer(self, self._publish, lockstep, self.pubs, self.observed)
         self.samples = 0
         self.bad_messages = 0
-        self.create_timer(1.0, self._report, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        steady_timer(self, 1.0, self._report)
         self.hot.start()
 
     def _channels(self, key: tuple[str, ...], v: np.ndarray) -> np.ndarray:

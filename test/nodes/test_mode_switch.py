@@ -7,21 +7,19 @@ import time
 import numpy as np
 import pytest
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from node_helpers import overrides
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.parameter import Parameter
 from rosmsgs import twist_msg
-from std_msgs.msg import String
+from std_msgs.msg import Int64, String
 from std_srvs.srv import Trigger
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.modes import Mode
-from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
 from dcsms_ros.nodes.mode_switch import ModeSwitchNode
-from dcsms_ros.nodes.msgs import status
+from dcsms_ros.ros import qos
 
 
 class Graph:
@@ -122,8 +120,9 @@ def test_instability_trip_latches_passive_until_reset(ctx, cfg, supervised):
 
 
 def test_restarted_controller_is_given_the_current_mode(ctx, cfg):
-    """A new boot id in a controller's report (a killed process restarted while its old enable
-    service still looks alive) makes mode_switch send it the current mode's state."""
+    """A new boot id on a controller's ``boot`` topic (a killed process restarted while its
+    old enable service still looks alive) makes mode_switch send it the current mode's
+    state."""
     g = Graph(ctx, cfg)
     try:
         assert g.call(topics.set_mode_service("dfbc")).success
@@ -134,12 +133,9 @@ def test_restarted_controller_is_given_the_current_mode(ctx, cfg):
         g.fb[0].loop.enable(False)
         time.sleep(1.2)
         assert not g.fb[0].loop.enabled
-        pub = g.client.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
-        report = DiagnosticArray(status=[status(topics.DEFAULT.status("fb_stage1"),
-                                                DiagnosticStatus.OK, "disabled",
-                                                {"boot_ns": 1})])
+        pub = g.client.create_publisher(Int64, topics.DEFAULT.boot("fb_stage1"), qos.latched())
         assert g.wait(lambda: pub.get_subscription_count() > 0)
-        pub.publish(report)
+        pub.publish(Int64(data=1))
         assert g.wait(lambda: g.fb[0].loop.enabled, timeout=5.0), "restart not noticed"
         assert g.ms.mode.label == "DFBC" and g.fb[1].loop.enabled
     finally:

@@ -27,9 +27,9 @@ from collections.abc import Callable
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped, WrenchStamped
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.publisher import Publisher
+from std_msgs.msg import Int64
 from std_srvs.srv import SetBool
 
 from dcsms_ros.cdr import TWIST_STAMPED, WRENCH_STAMPED, StampedWriter, read_stamped
@@ -38,23 +38,23 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller, retuned
 from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.errors import ConfigError
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
-from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import node_status, to_stamp
-from dcsms_ros.nodes.params import (
+from dcsms_ros.protocols.gate import MATCH_TIMEOUT_S
+from dcsms_ros.protocols.pacer import Watchdog
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.connectivity import has_reader, writer_matched
+from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.msgs import node_status, to_stamp
+from dcsms_ros.ros.params import (
     NodeConfig,
     answerer,
     declare_local,
     declare_observed,
     declare_schedule,
 )
-from dcsms_ros.nodes.runtime import Stoppable
-from dcsms_ros.nodes.stability import StabilityGuard
-from dcsms_ros.protocols.gate import MATCH_TIMEOUT_S
-from dcsms_ros.protocols.pacer import Watchdog
-
-STEADY = Clock(clock_type=ClockType.STEADY_TIME)
+from dcsms_ros.ros.runtime import Stoppable
+from dcsms_ros.ros.stability import StabilityGuard
 
 
 class ControllerNode(Node, Stoppable):
@@ -117,6 +117,8 @@ class ControllerNode(Node, Stoppable):
         self.changed_at_ns = -1
         self._seen = (0, 0)
         self.boot_ns = time.time_ns()  # tells mode_switch a restarted process from the old one
+        self.pub_boot = self.create_publisher(Int64, topics.LOCAL.boot(cid), qos.latched())
+        self.pub_boot.publish(Int64(data=self.boot_ns))
         # real time: the loop is stepped (its fade runs) only once its output reaches the plant
         self._linked = self.lockstep
         self._link_check_ns = -1
@@ -126,9 +128,8 @@ class ControllerNode(Node, Stoppable):
             # caught on time without waking the executor at 400 Hz (~6 % of a core)
             self.hot.set_tick(self._watchdog_tick)
         elif not self.lockstep:
-            self.create_timer(max(self.watchdog.timeout_s / 4.0, 1e-3), self._watchdog_locked,
-                              clock=STEADY)
-        self.create_timer(1.0, self._report, clock=STEADY)
+            steady_timer(self, max(self.watchdog.timeout_s / 4.0, 1e-3), self._watchdog_locked)
+        steady_timer(self, 1.0, self._report)
         self.get_logger().info(f"{cid}: input {topics.LOCAL.velocity(body)}, output "
                                f"{topics.LOCAL.force(cid)}, "
                                f"{'enabled' if enabled else 'disabled'}")
@@ -181,12 +182,11 @@ class ControllerNode(Node, Stoppable):
         if ns - self._link_check_ns < 10_000_000 or self.pub.get_subscription_count() == 0:
             return False
         self._link_check_ns = ns
-        infos = self.get_subscriptions_info_by_topic(self.pub.topic_name)
-        if self.force_reader and not any(i.node_name == self.force_reader for i in infos):
+        if self.force_reader and not has_reader(self, self.pub.topic_name, self.force_reader):
             return False
         if self._plant_seen is None:
             self._plant_seen = time.monotonic()
-        return (self.pub.get_subscription_count() >= len(infos)
+        return (writer_matched(self, self.pub)
                 or time.monotonic() - self._plant_seen > MATCH_TIMEOUT_S)
 
     def _watchdog_tick(self) -> float | None:

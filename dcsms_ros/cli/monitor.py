@@ -2,11 +2,13 @@
 schedule, watch the processes.
 
 A small node in the ``up`` process subscribes to the graph's ``mode`` and to ``/diagnostics``
-(1 Hz reports, not the 2 kHz streams), checks the graph's connections and, given a mode
-schedule, switches through the real ``set_mode/<mode>`` services. In lockstep a switch lands on
-a defined sample: the plant holds before the sample of the next switch (``hold_at_s``), reports
-that it holds, the switch is made, and the hold moves on to the following switch, so the run is
-the batch engine's bit for bit. In real time the switch is made when ``/clock`` passes its time.
+(1 Hz reports, not the 2 kHz streams, only shown), checks the graph's connections and, given a
+mode schedule, switches through the real ``set_mode/<mode>`` services. What it decides on
+travels on typed topics: ``plant/held`` and ``plant/finished``. In lockstep a switch lands on a
+defined sample: the plant holds before the sample of the next switch (``hold_at_s``), says so
+on ``plant/held``, the switch is made, and the hold moves on to the following switch, so the
+run is the batch engine's bit for bit. In real time the switch is made when ``/clock`` passes
+its time.
 """
 
 from __future__ import annotations
@@ -26,14 +28,15 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import String
+from std_msgs.msg import Bool, Int64, String
 from std_srvs.srv import Trigger
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.modes import Mode, controller_ids
 from dcsms_ros.graph import GraphSpec
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.bootstrap import ros_context, spin_until
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.connectivity import End, control_path, missing_ends
+from dcsms_ros.ros.context import ros_context, spin_until
 
 #: Seconds between status lines on a terminal, and when the output is a file or a pipe.
 STATUS_PERIOD_TTY = 0.5
@@ -67,8 +70,12 @@ class GraphMonitor:
         self.diag: dict[str, dict[str, str]] = {}
         self.messages: dict[str, str] = {}
         self.sim_time = -1.0
+        #: the sample the plant holds before (lockstep), -1: none yet
+        self.held_at = -1
+        self.finished = False
         nd = self.node
         nd.create_subscription(String, self.names.mode, self._on_mode, qos.latched())
+        nd.create_subscription(Bool, self.names.plant_finished, self._on_finished, qos.latched())
         nd.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diag,
                                qos.status())
         self.set_mode = {m: nd.create_client(Trigger, self.names.set_mode(m.value))
@@ -85,12 +92,21 @@ class GraphMonitor:
             if not self.lockstep:
                 nd.create_subscription(Clock, topics.CLOCK, self._on_clock,
                                        qos_profile_sensor_data)
+            else:
+                nd.create_subscription(Int64, self.names.plant_held, self._on_held,
+                                       qos.latched())
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(nd)
         self.tty = sys.stdout.isatty()
 
     def _on_mode(self, msg: String) -> None:
         self.mode = msg.data
+
+    def _on_held(self, msg: Int64) -> None:
+        self.held_at = msg.data
+
+    def _on_finished(self, msg: Bool) -> None:
+        self.finished = self.finished or msg.data
 
     def _on_clock(self, msg: Clock) -> None:
         self.sim_time = msg.clock.sec + msg.clock.nanosec * 1e-9
@@ -105,12 +121,9 @@ class GraphMonitor:
 
     def missing(self) -> list[str]:
         """What is not connected yet (empty when the graph is up)."""
-        node, nm = self.node, self.names
-        out = [c for c in controller_ids(self.n) if node.count_publishers(nm.force(c)) == 0]
-        if node.count_subscribers(nm.sensors_raw) == 0:
-            out.append("sensor_decoupling")
-        if node.count_publishers(nm.sensors_raw) == 0:
-            out.append(PLANT)
+        nm = self.names
+        out = missing_ends(self.node, [*control_path(nm, controller_ids(self.n)),
+                                       End(nm.sensors_raw, True, PLANT)])
         if self.mode is None or not self.set_mode[Mode.PASSIVE].service_is_ready():
             out.append("mode_switch")
         return out
@@ -148,11 +161,7 @@ class GraphMonitor:
         if self._next >= len(self.events):
             return
         t, m = self.events[self._next]
-        if self.lockstep:
-            p = self.diag.get(PLANT, {})
-            due = p.get("held") == "True" and p.get("hold_sample") == str(self._sample(self._next))
-        else:
-            due = self.sim_time >= t
+        due = self.held_at == self._sample(self._next) if self.lockstep else self.sim_time >= t
         if due and self.set_mode[m].service_is_ready():
             self._pending = self.set_mode[m].call_async(Trigger.Request())
 
@@ -169,7 +178,7 @@ class GraphMonitor:
                 "  TRIPPED" if ms.get("tripped") == "True" else "")
         degraded = self.messages.get(PLANT, "")
         extra = f"  [{degraded}]" if degraded.startswith("degraded") else ""
-        if p.get("finished") == "True":  # the plant waits for its readers (the recorder)
+        if self.finished:  # the plant waits for its readers (the recorder)
             extra += "  finished; delivering the last samples"
         return (f"t={float(p.get('sim_time_s', 0.0)):9.3f} s  "
                 f"rate={float(p.get('achieved_rate_hz', 0.0)):7.1f} Hz  "
@@ -197,7 +206,7 @@ class GraphMonitor:
                     continue
                 # a finished run: the plant's last report may still be in flight
                 if kid.name in plant_proc and code == 0 and expect_finish and spin_until(
-                        self.executor, self._plant_finished, timeout_s=1.0, poll_s=0.05):
+                        self.executor, lambda: self.finished, timeout_s=1.0, poll_s=0.05):
                     self._print(self.status_line(), final=True)
                     print("dcsms up: run finished", flush=True)
                     return 0
@@ -224,9 +233,6 @@ class GraphMonitor:
                 self._print(self.status_line())
         self._print(self.status_line(), final=True)
         return 0
-
-    def _plant_finished(self) -> bool:
-        return self.diag.get(PLANT, {}).get("finished") == "True"
 
     def _print(self, line: str, final: bool = False) -> None:
         if self.tty:

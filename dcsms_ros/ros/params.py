@@ -37,11 +37,11 @@ from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 
 from dcsms_ros.core.config import SystemConfig, config_from_flat
-from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.core.schema import GLOBAL_SPECS, ParamSpec, expand_specs
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.graph import SCHEDULES
 from dcsms_ros.protocols.responder import Answerer
+from dcsms_ros.ros.connectivity import publishers_matched
 
 #: Prefixes of run-time tunable names; everything else is fixed once a node runs.
 MUTABLE_PREFIXES = ("feedback.", "feedforward.", "control.", "supervisor.")
@@ -270,20 +270,6 @@ def declare_observed(node: Node) -> list[str]:
                               "probe) before the first lockstep sample"))
 
 
-#: Node names of the graph itself; a subscriber from any other node is an observer.
-GRAPH_NODES = ("plant_simulator", "sensor_decoupling", "mode_switch", "excitation")
-
-
-def in_graph(node_name: str) -> bool:
-    """True for a node of the graph itself (a subscriber from any other node is an observer)."""
-    return node_name in GRAPH_NODES or ControllerId.is_valid(node_name)
-
-
-def outside_graph(node: Node, topic: str) -> bool:
-    """True if ``topic`` has a subscriber that is not a node of the graph (an observer)."""
-    return any(not in_graph(i.node_name) for i in node.get_subscriptions_info_by_topic(topic))
-
-
 def answerer(node: Node, publish: Callable[[T], None], lockstep: bool,
              pubs: list[Publisher], observed: list[str]) -> Answerer[T]:
     """The per-sample :class:`~dcsms_ros.protocols.responder.Answerer` of ``node``: in
@@ -292,19 +278,3 @@ def answerer(node: Node, publish: Callable[[T], None], lockstep: bool,
     return Answerer(publish, lockstep, lambda: publishers_matched(node, pubs, observed),
                     on_timeout=lambda: node.get_logger().warning(
                         "not every reader matched; answering anyway"))
-
-
-def publishers_matched(node: Node, pubs: list[Publisher], observed: list[str]) -> bool:
-    """True when each publisher has matched every reader this node's graph view shows, and
-    each observed topic among them has a reader outside the graph.
-
-    ``pub.get_subscription_count()`` is the DDS writer's own matched-reader count, so a sample
-    published after this returns True reaches every reader known so far.
-    """
-    for pub in pubs:
-        topic = pub.topic_name
-        if pub.get_subscription_count() < node.count_subscribers(topic):
-            return False
-        if topic in observed and not outside_graph(node, topic):
-            return False
-    return True

@@ -21,26 +21,31 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
-from rclpy.clock import Clock, ClockType
 from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Header
+from std_msgs.msg import Bool, Header, Int64
 
 from dcsms_ros.cdr import TWIST_STAMPED, JointStateWriter, StampedWriter, header_bytes
 from dcsms_ros.core import topics
 from dcsms_ros.core.simulator import PlantSimulator
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.msgs import node_status, sample_ns, to_stamp
-from dcsms_ros.nodes.params import declare_observed, outside_graph, publishers_matched
 from dcsms_ros.protocols.barrier import LockstepBarrier
 from dcsms_ros.protocols.runstats import LatencyHistogram
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.connectivity import (
+    End,
+    control_path,
+    missing_ends,
+    outside_graph,
+    publishers_matched,
+)
+from dcsms_ros.ros.msgs import node_status, sample_ns, to_stamp
+from dcsms_ros.ros.params import declare_observed
 
 #: Seconds the handshake waits after the graph looks connected, so DDS endpoints match too.
 SETTLE_S = 0.2
 #: Publication times of the newest samples kept for the latency of late forces (a power of 2).
 RING = 256
-STEADY = Clock(clock_type=ClockType.STEADY_TIME)
 
 
 class PlantIO:
@@ -71,6 +76,9 @@ class PlantIO:
         self.pub_truth = [node.create_publisher(TwistStamped, names.truth(b), pub_qos)
                           for b in self.bodies] if opts.publish_truth else []
         self.pub_diag = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        # what a supervisor decides on travels on typed topics, not in the diagnostics' text
+        self.pub_held = node.create_publisher(Int64, names.plant_held, qos.latched())
+        self.pub_finished = node.create_publisher(Bool, names.plant_finished, qos.latched())
         self.pub_check = (node.create_publisher(Header, names.trip_check, qos.stream_pub(True))
                           if trip_gate else None)
         # the per-sample messages are serialized here directly (dcsms_ros.cdr: no message objects)
@@ -101,17 +109,15 @@ class PlantIO:
     def _missing(self) -> list[str]:
         """What the graph still lacks before sample 0 can be published."""
         nd, names = self.node, topics.LOCAL
-        out = [f"publisher of {names.force(c)}" for c in nd.controllers
-               if nd.count_publishers(names.force(c)) == 0]
-        if nd.count_subscribers(names.sensors_raw) == 0:
-            out.append(f"subscriber of {names.sensors_raw}")
-        if self.pub_check is not None and (nd.count_publishers(names.trip_checked) == 0
-                                           or nd.count_subscribers(names.trip_check) == 0):
-            out.append("mode_switch's trip checkpoints")
+        ends = control_path(names, nd.controllers)
+        if self.pub_check is not None:
+            ends += [End(names.trip_checked, True, "mode_switch's trip checkpoints"),
+                     End(names.trip_check, False, "mode_switch's trip checkpoints")]
+        out = missing_ends(nd, ends)
         out += [f"observer of {t}" for t in self.observed if not outside_graph(nd, t)]
         own = [self.pub_raw, self.pub_applied, *self.pub_truth]
-        if topics.DIAGNOSTICS in self.observed:  # a supervisor (`dcsms up`) must hear the end
-            own.append(self.pub_diag)
+        # a supervisor (`dcsms up`) must hear the end
+        own += [p for p in (self.pub_diag, self.pub_finished) if p.topic_name in self.observed]
         if self.pub_check is not None:
             own.append(self.pub_check)
         if not out and not publishers_matched(nd, own, self.observed):
@@ -237,8 +243,13 @@ class PlantIO:
         self.node.get_logger().warning(f"force of {c} is stale (> {self.node.held.timeout_s:g}"
                                        f" s): zero", throttle_duration_sec=2.0)
 
+    def holding(self, sample: int) -> None:
+        """Lockstep: the plant stopped before ``sample`` (its hold); say so on ``plant/held``."""
+        self.pub_held.publish(Int64(data=sample))
+
     def done(self) -> None:
-        """The run's last sample: log the summary."""
+        """The run's last sample: say so on ``plant/finished`` and log the summary."""
+        self.pub_finished.publish(Bool(data=True))
         self.flush_applied()
         wall = time.monotonic() - self._t_run
         self._cpu[1] = time.process_time()
@@ -298,7 +309,8 @@ class PlantIO:
             arrays.update({f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
                            for c, v in self._lat.items()})
             np.savez(self.node.opts.timing_file, **arrays)
-        return [self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag]
+        return [self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag, self.pub_held,
+                self.pub_finished]
 
 
-__all__ = ["SETTLE_S", "STEADY", "PlantIO"]
+__all__ = ["SETTLE_S", "PlantIO"]
