@@ -41,9 +41,9 @@ def _node_cost(cfg: Any, res: Any, supervised: bool) -> tuple[float, int]:
         JointStateWriter,
         StampedWriter,
     )
+    from dcsms_ros.core.checkpoints import CheckpointFeed
     from dcsms_ros.core.modes import Mode
     from dcsms_ros.core.supervision import make_supervisor
-    from dcsms_ros.core.supervisor import CheckpointFeed
     from dcsms_ros.core.trip import TripChecker
     from dcsms_ros.protocols.superfeed import SupervisedFeed
     from dcsms_ros.protocols.tripfeed import TripFeed

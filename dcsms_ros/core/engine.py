@@ -17,13 +17,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcsms_ros.core import fastsim
+from dcsms_ros.core.checkpoints import CheckpointFeed
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.core.modes import ControllerId, Mode, controller_ids, enabled_controllers
 from dcsms_ros.core.simulator import PlantSimulator, check_plant
 from dcsms_ros.core.supervision import make_supervisor
-from dcsms_ros.core.supervisor import CheckpointFeed, State, Supervisor, Transition
+from dcsms_ros.core.supervisor import State, Supervisor, Transition
 from dcsms_ros.core.trip import Trip, TripChecker
 from dcsms_ros.errors import ConfigError
 

@@ -30,10 +30,9 @@ from enum import Enum
 import numpy as np
 from numpy.typing import NDArray
 
-from dcsms_ros.core.check import actuator_limits
-from dcsms_ros.core.config import SystemConfig
-from dcsms_ros.core.modes import Mode
-from dcsms_ros.core.trip import CHECK_PERIOD_S, TripChecker, TripMonitor
+from dcsms_ros.core.config import ControlConfig, SupervisorConfig
+from dcsms_ros.core.modes import Mode, parse_mode
+from dcsms_ros.core.trip import CHECK_PERIOD_S
 
 Array = NDArray[np.float64]
 
@@ -50,6 +49,10 @@ class State(Enum):
 
 #: The labels of the states in which a trip holds the table Passive (an excitation stops).
 TRIPPED_STATES = frozenset({State.TRIPPED.value, State.LATCHED.value})
+
+
+_CFG = SupervisorConfig()
+_RIDE_MODE = parse_mode(_CFG.ride_mode)
 
 
 @dataclass(frozen=True)
@@ -100,22 +103,23 @@ class SupervisorSettings:
         A clean run this long forgives the trips before it, s.
     """
 
-    enabled: bool = True
-    ride_mode: Mode = Mode.FBC
-    trip_rms_mps: float = 1e-3
-    ride_ground_mps: float = 2e-4
-    ride_force_ratio: float = 0.8
-    quiet_fraction: float = 0.5
-    recover_after_s: float = 5.0
-    settle_s: float = 1.0
-    excess_ratio: float = 4.0
-    growth_per_s: float = 2.0
-    floor_memory_s: float = 2.0
+    # the defaults are the configuration's (one home: core/config.py, the schema's defaults)
+    enabled: bool = _CFG.enabled
+    ride_mode: Mode = _RIDE_MODE
+    trip_rms_mps: float = ControlConfig.trip_rms_mps
+    ride_ground_mps: float = _CFG.ride_ground_mps
+    ride_force_ratio: float = _CFG.ride_force_ratio
+    quiet_fraction: float = _CFG.quiet_fraction
+    recover_after_s: float = _CFG.recover_after_s
+    settle_s: float = _CFG.settle_s
+    excess_ratio: float = _CFG.excess_ratio
+    growth_per_s: float = _CFG.growth_per_s
+    floor_memory_s: float = _CFG.floor_memory_s
     growth_span: int = 4
-    hold_s: float = 2.0
-    backoff: float = 2.0
-    max_attempts: int = 3
-    attempts_window_s: float = 120.0
+    hold_s: float = _CFG.hold_s
+    backoff: float = _CFG.backoff
+    max_attempts: int = _CFG.max_attempts
+    attempts_window_s: float = _CFG.attempts_window_s
 
 
 @dataclass(frozen=True)
@@ -361,60 +365,5 @@ class Supervisor:
         self.transitions.append(tr)
         return tr
 
-class CheckpointFeed:
-    """Builds each :class:`Checkpoint` from the samples of a run: the ground velocity through
-    the trip's own band-pass and window, the actuator forces' peak over the same window.
-
-    The forces of a checkpoint ending at sample k are those of samples k-W .. k-1 (W samples
-    per window): the graph's plant applies sample k's forces only once the checkpoint has been
-    judged (the verdict may disable controllers before they reach the plant), so the batch
-    engine lags them by one sample too (:meth:`feed`).
-
-    Parameters
-    ----------
-    cfg : SystemConfig
-        The trip band and window (``control``), the actuator limits, the sample rate.
-    """
-
-    def __init__(self, cfg: SystemConfig) -> None:
-        self.ground = TripMonitor(cfg.control, cfg.plant.rate_hz, cfg.plant.dof)
-        self.limit = actuator_limits(cfg)[1]
-        self.dt = cfg.plant.dt
-        self.window = max(1, int(round(cfg.control.trip_window_s / CHECK_PERIOD_S)))
-        self.peaks: list[float] = []
-        self.pending = 0.0
-        self._carry: Array | None = None  # feed(): the newest force row, for the next window
-
-    def feed_ground(self, ground: Array) -> None:
-        """Ground twist rows ``(K, dof)`` (m/s) of the samples since the last call."""
-        if ground.shape[0]:
-            self.ground.update(ground)
-
-    def feed_force(self, applied: Array) -> None:
-        """Applied force rows ``(K, n_actuators)`` (N) that count in the next checkpoint."""
-        if applied.shape[0]:
-            self.pending = max(self.pending, float(np.max(np.abs(applied) / self.limit)))
-
-    def feed(self, ground: Array, applied: Array) -> None:
-        """Rows of the same samples (the batch engine): ground twist ``(K, dof)`` (m/s), forces
-        ``(K, n_actuators)`` (N); the newest force row is held for the next checkpoint."""
-        self.feed_ground(ground)
-        if applied.shape[0]:
-            if self._carry is not None:
-                self.feed_force(self._carry)
-            self.feed_force(applied[:-1])
-            self._carry = applied[-1:].copy()
-
-    def checkpoint(self, sample: int, checker: TripChecker) -> Checkpoint:
-        """The checkpoint ending at ``sample`` (after the rows through it were fed), with the
-        stage band RMS of ``checker``."""
-        self.peaks = [*self.peaks[-(self.window - 1):], self.pending] if self.window > 1 \
-            else [self.pending]
-        self.pending = 0.0
-        stage = np.array([m.rms for m in checker.monitors])
-        return Checkpoint(sample, sample * self.dt, stage, self.ground.rms.copy(),
-                          max(self.peaks))
-
-
-__all__ = ["TRIPPED_STATES", "Checkpoint", "CheckpointFeed", "State", "Supervisor",
+__all__ = ["TRIPPED_STATES", "Checkpoint", "State", "Supervisor",
            "SupervisorSettings", "Transition"]

@@ -57,10 +57,11 @@ from dcsms_ros.cdr import (
     read_stamped,
 )
 from dcsms_ros.core import topics
+from dcsms_ros.core.checkpoints import CheckpointFeed
 from dcsms_ros.core.config import params_text
 from dcsms_ros.core.modes import ALL_MODES, Mode, controller_ids, enabled_controllers, parse_mode
 from dcsms_ros.core.supervision import LazyGains, make_supervisor, settings_from
-from dcsms_ros.core.supervisor import CheckpointFeed, State, Transition
+from dcsms_ros.core.supervisor import State, Transition
 from dcsms_ros.core.trip import TripChecker
 from dcsms_ros.errors import ConfigError, ModeError
 from dcsms_ros.nodes.mode_switch_clients import ControllerClients

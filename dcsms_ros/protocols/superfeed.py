@@ -18,7 +18,8 @@ from collections import deque
 import numpy as np
 from numpy.typing import NDArray
 
-from dcsms_ros.core.supervisor import CheckpointFeed, Supervisor, Transition
+from dcsms_ros.core.checkpoints import CheckpointFeed
+from dcsms_ros.core.supervisor import Supervisor, Transition
 from dcsms_ros.protocols.tripfeed import TripFeed
 
 Array = NDArray[np.float64]

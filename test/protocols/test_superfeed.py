@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dcsms_ros.core.checkpoints import CheckpointFeed
 from dcsms_ros.core.config import SystemConfig, with_overrides
 from dcsms_ros.core.engine import SimResult, simulate
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.core.supervision import make_supervisor
-from dcsms_ros.core.supervisor import CheckpointFeed
 from dcsms_ros.core.trip import TripChecker
 from dcsms_ros.protocols.superfeed import SupervisedFeed
 from dcsms_ros.protocols.tripfeed import TripFeed
