@@ -2,7 +2,7 @@
 
 Every figure is measured in this run: the rclpy ping-pong bound (``pingpong.py``, default
 executor on both sides), the same ping-pong with the echo on rclpy's ``EventsExecutor`` and with
-both sides on the hot path (``dcsms_ros/nodes/hotpath.py``), then the six-process graph
+both sides on the hot path (``dcsms_ros/ros/hotpath.py``), then the six-process graph
 (plant, decoupling, fb_stage1, fb_stage2, ff_stage1, mode_switch; table1, DFBC+FFC) in lockstep
 with the hot path on and off (``DCSMS_HOT_PATH=0``: every subscription on the default
 executor), then in real time at ``plant.rate_hz`` for ``--rt-seconds``.
@@ -68,10 +68,10 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
 
     ``on_running(kids)`` (e.g. a profiler attaching to ``kid.proc.pid``) is called once the
     plant steps."""
+    from dcsms_ros.cli import deploy
     from dcsms_ros.core.config import load_config
     from dcsms_ros.core.modes import Mode
     from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, define_graph
-    from dcsms_ros.nodes import deploy
 
     cfg = load_config(config)
     run_dir = Path(tempfile.mkdtemp(prefix=f"graph-{schedule}-", dir=tmp))

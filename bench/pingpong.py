@@ -7,7 +7,7 @@ step needs one message exchange between two processes. The pinger spins a
 SingleThreadedExecutor (``--ping events``: rclpy's EventsExecutor); the echo side that one or
 (``--executor events``) the EventsExecutor, each driven by a ``spin_once`` loop.
 ``--executor hot`` (echo) and ``ping="hot"`` serve the subscription from a minimal wait set
-instead, as the dcsms nodes' hot path does (``dcsms_ros/nodes/hotpath.py``).
+instead, as the dcsms nodes' hot path does (``dcsms_ros/ros/hotpath.py``).
 Reliable QoS, depth 1.
 """
 
@@ -45,7 +45,7 @@ def echo(executor: str) -> None:
     if executor == "hot":
         import threading
 
-        from dcsms_ros.nodes.hotpath import HotPath
+        from dcsms_ros.ros.hotpath import HotPath
 
         hot = HotPath(node, threading.Lock())
         hot.subscribe(TwistStamped, PING, pub.publish, 1)
@@ -99,7 +99,7 @@ def _hot_waiter(node: Any) -> tuple[Any, Any]:
     from geometry_msgs.msg import TwistStamped
     from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-    from dcsms_ros.nodes.hotpath import DetachedGroup
+    from dcsms_ros.ros.hotpath import DetachedGroup
 
     sub = node.create_subscription(TwistStamped, PONG, lambda m: None, 1,
                                    callback_group=DetachedGroup())

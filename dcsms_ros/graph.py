@@ -37,10 +37,10 @@ NODE_CLASSES = {
 }
 SCHEDULES = ("lockstep", "realtime")
 #: Environment variable: SCHED_FIFO priority (1-99) of a node process's hot thread (only it:
-#: :func:`dcsms_ros.nodes.runtime.rt_priority_from_env`); set for the control path by
+#: :func:`dcsms_ros.ros.runtime.rt_priority_from_env`); set for the control path by
 #: ``--rt-priority`` and the launch argument ``rt_priority``.
 RT_PRIORITY_ENV = "DCSMS_RT_PRIORITY"
-#: Writer history of lockstep streams (:func:`dcsms_ros.nodes.qos.stream_pub`), and so the
+#: Writer history of lockstep streams (:func:`dcsms_ros.ros.qos.stream_pub`), and so the
 #: reader history of a recorder of a lockstep run: how far a reliable observer (recorder,
 #: probe) may lag behind, and the window in which a sample it lost (a full shared-memory queue
 #: while its process was starved) can still be repaired, which takes a heartbeat period (~3 s

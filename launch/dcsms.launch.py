@@ -50,7 +50,7 @@ def _nodes(context, *args, **kwargs):
         return [ExecuteProcess(cmd=[sys.executable, "-m", "dcsms_ros.nodes.container",
                                     "--graph", graph, "--params-file", params,
                                     "--rt-priority", arg["rt_priority"]], output="screen")]
-    # read by dcsms_ros.nodes.runtime: the hot thread alone runs under SCHED_FIFO
+    # read by dcsms_ros.ros.runtime: the hot thread alone runs under SCHED_FIFO
     rt = {RT_PRIORITY_ENV: arg["rt_priority"]}
     return [Node(package=PACKAGE, executable=n.executable, name=n.name,
                  namespace=spec.namespace, parameters=[params], remappings=list(n.remappings),

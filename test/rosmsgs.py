@@ -16,7 +16,7 @@ from geometry_msgs.msg import TwistStamped, WrenchStamped
 from sensor_msgs.msg import JointState
 
 from dcsms_ros.cdr import NS
-from dcsms_ros.nodes.msgs import to_stamp
+from dcsms_ros.ros.msgs import to_stamp
 
 
 def stamp_ns(stamp: Time) -> int:

@@ -31,10 +31,12 @@ ALLOWED: dict[str, set[str]] = {
     "analysis": {"core", "errors", "jsonutil", "cdr"},
     "design": {"core", "analysis", "errors"},
     "graph": {"core", "errors"},
-    "nodes": {"core", "analysis", "protocols", "graph", "errors", "jsonutil", "cdr", "rosenv"},
+    "ros": {"core", "analysis", "protocols", "graph", "errors", "jsonutil", "cdr", "rosenv"},
+    "nodes": {"ros", "core", "analysis", "protocols", "graph", "errors", "jsonutil", "cdr",
+              "rosenv"},
 }
 #: Parts that never import ROS (rclpy, message packages), not even inside a function.
-ROS_FREE = set(ALLOWED) - {"nodes"}
+ROS_FREE = set(ALLOWED) - {"nodes", "ros"}
 #: Top-level names of the ROS Python packages this project uses.
 ROS_PACKAGES = ("rclpy", "builtin_interfaces", "diagnostic_msgs", "geometry_msgs",
                 "sensor_msgs", "std_msgs", "std_srvs", "rosgraph_msgs", "rcl_interfaces")

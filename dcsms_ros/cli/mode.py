@@ -49,8 +49,8 @@ def run(args: argparse.Namespace) -> int:
     from std_msgs.msg import String  # noqa: PLC0415 - deferred: ROS
     from std_srvs.srv import Trigger  # noqa: PLC0415 - deferred: ROS
 
-    from dcsms_ros.nodes import qos  # noqa: PLC0415 - deferred: ROS
-    from dcsms_ros.nodes.bootstrap import (  # noqa: PLC0415 - deferred: ROS
+    from dcsms_ros.ros import qos  # noqa: PLC0415 - deferred: ROS
+    from dcsms_ros.ros.context import (  # noqa: PLC0415 - deferred: ROS
         ros_context,
         spin_until,
     )

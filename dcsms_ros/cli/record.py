@@ -3,7 +3,7 @@
 The recorder runs in this process (:func:`dcsms_ros.nodes.recorder.record`); SIGINT and SIGTERM
 end it cleanly with exit status 0 after every queued message was written, and the per-topic
 counts and gaps are printed on stdout. ``dcsms up --record OUT`` starts the same command as a
-child process (:func:`dcsms_ros.nodes.deploy.recorder_command`) and stops it with SIGINT.
+child process (:func:`dcsms_ros.cli.deploy.recorder_command`) and stops it with SIGINT.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from dcsms_ros.cli.common import print_json
+from dcsms_ros.cli.deploy import recorder_command
 from dcsms_ros.errors import BagError, DcsmsError
-from dcsms_ros.nodes.deploy import recorder_command
 
 STORAGES = ("mcap", "sqlite3")
 

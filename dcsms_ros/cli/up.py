@@ -3,7 +3,7 @@
 The graph is :func:`dcsms_ros.graph.define_graph` of the configuration (``--config`` plus every
 ``--set``), in namespace ``--namespace``; it runs one process per node (the ``ros2 run``
 deployment, default) or ``--composed`` (every node in one process, one driver thread for the
-per-sample cycle); :mod:`dcsms_ros.nodes.deploy` starts and stops it. Ctrl-C or SIGTERM: every
+per-sample cycle); :mod:`dcsms_ros.cli.deploy` starts and stops it. Ctrl-C or SIGTERM: every
 process gets SIGINT, then SIGTERM and SIGKILL after a timeout; exit status 0 and no traceback.
 Node logs go to files in ``--log-dir`` (shown at start) unless ``--verbose``.
 """
@@ -25,12 +25,12 @@ from dcsms_ros.cli.common import (
     print_model_check,
     refuse_unstable_start,
 )
+from dcsms_ros.cli.deploy import RECORDERS, Deployment, run_graph
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode, parse_mode
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import GraphSpec, define_graph
-from dcsms_ros.nodes.deploy import RECORDERS, Deployment, run_graph
 
 
 def add_deploy_options(p: argparse.ArgumentParser) -> None:

@@ -4,9 +4,10 @@
 ``dcsms up --composed`` and the launch argument ``composed:=true`` run) creates each node of the
 graph (:mod:`dcsms_ros.graph`) with its own class, name, parameters and services, all on one
 rclpy context. The node classes are the ones of the one-process-per-node deployment; what
-changes is who serves their per-sample subscriptions: one :class:`~.hotpath.HotLoop`, the
-*driver*, serves every node's hot path in one thread (the nodes live on a
-:class:`~.hotpath.DrivenContext`, which holds it). In lockstep the
+changes is who serves their per-sample subscriptions: one
+:class:`~dcsms_ros.ros.hotpath.HotLoop`, the *driver*, serves every node's hot path in one
+thread (the nodes live on a
+:class:`~dcsms_ros.ros.hotpath.DrivenContext`, which holds it). In lockstep the
 plant publishes sample k, the decoupling takes it and answers, each controller takes that
 answer and answers in turn, and the plant takes the forces and publishes k+1 - every hop
 through the nodes' real publishers and subscriptions, so a subscriber in another process (a
@@ -37,10 +38,10 @@ from rclpy.node import Node
 
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, GraphSpec, NodeSpec, spec_from_dict
-from dcsms_ros.nodes.bootstrap import STOP_EXCEPTIONS, ros_context, spin_until
-from dcsms_ros.nodes.hotpath import DrivenContext
 from dcsms_ros.nodes.recorder import Recorder
-from dcsms_ros.nodes.runtime import close_nodes, config_error, quiesce
+from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
+from dcsms_ros.ros.hotpath import DrivenContext
+from dcsms_ros.ros.runtime import close_nodes, config_error, quiesce
 
 #: Executor threads: services and parameters of six nodes, the mode switch's calls.
 EXECUTOR_THREADS = 3

@@ -38,17 +38,17 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.excitation import Excitation, check_specs, parse_spec
 from dcsms_ros.core.supervisor import TRIPPED_STATES
 from dcsms_ros.errors import ConfigError
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import node_status, to_stamp
-from dcsms_ros.nodes.params import (
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.msgs import node_status, to_stamp
+from dcsms_ros.ros.params import (
     NodeConfig,
     answerer,
     declare_local,
     declare_observed,
     declare_schedule,
 )
-from dcsms_ros.nodes.runtime import Stoppable, main_for
+from dcsms_ros.ros.runtime import Stoppable, main_for
 
 
 class ExcitationNode(Node, Stoppable):

@@ -4,7 +4,8 @@ One executable, one instance per stage: parameter ``stage`` (1-based) selects th
 node must be named ``fb_stage<stage>`` in namespace ``/dcsms`` (``-r __node:=fb_stage2``), so
 it reads ``/dcsms/velocity/stage<stage>``, publishes ``/dcsms/force/fb_stage<stage>`` and offers
 ``/dcsms/fb_stage<stage>/enable``. It declares only its own stage's ``feedback.stage<i>.*``
-tuning plus the fade time and input timeout (and the system structure, see :mod:`.params`).
+tuning plus the fade time and input timeout (and the system structure, see
+:mod:`dcsms_ros.ros.params`).
 """
 
 from __future__ import annotations
@@ -13,9 +14,9 @@ from typing import Any
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.modes import FB_STAGE1, FEEDBACK, ControllerId
-from dcsms_ros.nodes.controller import ControllerNode
-from dcsms_ros.nodes.params import declare_local, feedback_select
-from dcsms_ros.nodes.runtime import main_for
+from dcsms_ros.ros.controller_node import ControllerNode
+from dcsms_ros.ros.params import declare_local, feedback_select
+from dcsms_ros.ros.runtime import main_for
 
 
 class FeedbackControllerNode(ControllerNode):

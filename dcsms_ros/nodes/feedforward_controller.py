@@ -11,9 +11,9 @@ from typing import Any
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.modes import FF_STAGE1
-from dcsms_ros.nodes.controller import ControllerNode
-from dcsms_ros.nodes.params import SELECTORS
-from dcsms_ros.nodes.runtime import main_for
+from dcsms_ros.ros.controller_node import ControllerNode
+from dcsms_ros.ros.params import SELECTORS
+from dcsms_ros.ros.runtime import main_for
 
 
 class FeedforwardControllerNode(ControllerNode):

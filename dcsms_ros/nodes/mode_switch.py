@@ -6,7 +6,7 @@ Services (all ``std_srvs/Trigger``): ``set_mode/<passive|fbc|ffc|fbc_ffc|dfbc|df
 the old or the new mode enables; if one does not confirm within ``switch_timeout_s``, every
 controller that did is set back and the response names the one that failed. A switch into a
 mode the model of the running configuration calls unstable is refused with the pole
-(:mod:`.stability`; ``allow_unstable`` lets it through). The mode label is on ``mode``
+(:mod:`dcsms_ros.ros.stability`; ``allow_unstable`` lets it through). The mode label is on ``mode``
 (transient local, depth 1).
 
 Supervisor (``supervisor.enabled``, the default; :mod:`dcsms_ros.core.supervisor`, fed by
@@ -63,21 +63,21 @@ from dcsms_ros.core.supervision import LazyGains, make_supervisor, settings_from
 from dcsms_ros.core.supervisor import CheckpointFeed, State, Transition
 from dcsms_ros.core.trip import TripChecker
 from dcsms_ros.errors import ConfigError, ModeError
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import node_status, sample_ns, to_stamp
-from dcsms_ros.nodes.params import (
+from dcsms_ros.nodes.mode_switch_clients import ControllerClients
+from dcsms_ros.protocols.superfeed import SupervisedFeed
+from dcsms_ros.protocols.tripfeed import TripFeed
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.msgs import node_status, sample_ns, to_stamp
+from dcsms_ros.ros.params import (
     MUTABLE_PREFIXES,
     SELECTORS,
     NodeConfig,
     declare_local,
     declare_schedule,
 )
-from dcsms_ros.nodes.runtime import main_for
-from dcsms_ros.nodes.stability import StabilityGuard
-from dcsms_ros.nodes.switching import ControllerClients
-from dcsms_ros.protocols.superfeed import SupervisedFeed
-from dcsms_ros.protocols.tripfeed import TripFeed
+from dcsms_ros.ros.runtime import main_for
+from dcsms_ros.ros.stability import StabilityGuard
 
 #: Reader depth of the trip monitor's velocity streams (samples).
 TRIP_DEPTH = 4000

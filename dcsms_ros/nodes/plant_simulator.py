@@ -17,8 +17,8 @@ graph's namespace). Two schedules (parameter ``schedule``):
   (:class:`~dcsms_ros.protocols.pacer.HeldInputs`: older than ``control.input_timeout_s`` is
   zero).
 
-Startup handshake (:mod:`.plant_io`): sample 0 is published only once the graph is connected,
-or after ``handshake_timeout_s``.
+Startup handshake (:mod:`.plant_simulator_io`): sample 0 is published only once the graph is
+connected, or after ``handshake_timeout_s``.
 """
 
 from __future__ import annotations
@@ -40,14 +40,15 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.core.trip import check_samples
-from dcsms_ros.nodes import plant_io, qos
-from dcsms_ros.nodes.guard import FORCE_LIMIT_FACTOR, InputGuard
-from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.params import SELECTORS, NodeConfig, declare_schedule
-from dcsms_ros.nodes.plant_options import declare_plant_options, replayed_ground
-from dcsms_ros.nodes.runtime import Stoppable, main_for
+from dcsms_ros.nodes import plant_simulator_io as plant_io
+from dcsms_ros.nodes.plant_simulator_options import declare_plant_options, replayed_ground
 from dcsms_ros.protocols.barrier import Action, LockstepBarrier
 from dcsms_ros.protocols.pacer import HeldInputs, Pacer
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.guard import FORCE_LIMIT_FACTOR, InputGuard
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.params import SELECTORS, NodeConfig, declare_schedule
+from dcsms_ros.ros.runtime import Stoppable, main_for
 
 #: Barrier participant of the trip checkpoints (mode_switch's verdicts).
 TRIP = "trip"

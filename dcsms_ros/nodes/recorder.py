@@ -17,7 +17,7 @@ recorder's budget; name it in ``topics`` to record it.
 
 Shutdown (SIGINT, SIGTERM or ``duration_s``): rclpy's own signal handlers are not installed
 (they would invalidate the context before the queues are read); a Python handler sets a flag
-(:func:`~.bootstrap.ros_context` with ``signals=True``), the spin loop ends, and
+(:func:`~dcsms_ros.ros.context.ros_context` with ``signals=True``), the spin loop ends, and
 :meth:`Recorder.drain` takes everything still queued in the DDS readers until every active
 topic shows a message received after the signal, or no message arrived for ``QUIET_S``, or
 ``DRAIN_MAX_S`` passed. Then the bag is closed (``metadata.yaml``) and renamed
@@ -45,7 +45,7 @@ from dcsms_ros.analysis.bagio import BagWriter
 from dcsms_ros.analysis.gaps import Recording, TopicStats
 from dcsms_ros.cdr import CLOCK, read_stamp
 from dcsms_ros.errors import BagError, DcsmsError
-from dcsms_ros.nodes.bootstrap import STOP_EXCEPTIONS, ros_context, spin_until
+from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
 
 NODE_NAME = "dcsms_recorder"
 DEFAULT_TOPICS = ("/dcsms/*",)

@@ -26,18 +26,18 @@ from sensor_msgs.msg import JointState
 from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, StampedWriter
 from dcsms_ros.core import topics
 from dcsms_ros.core.decoupling import Decoupler
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
-from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import node_status, to_stamp
-from dcsms_ros.nodes.params import (
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.msgs import node_status, to_stamp
+from dcsms_ros.ros.params import (
     SELECTORS,
     NodeConfig,
     answerer,
     declare_observed,
     declare_schedule,
 )
-from dcsms_ros.nodes.runtime import main_for
+from dcsms_ros.ros.runtime import main_for
 
 
 class SensorDecouplingNode(Node):

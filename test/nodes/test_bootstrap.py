@@ -10,7 +10,7 @@ import pytest
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from dcsms_ros.nodes.bootstrap import ros_context, spin_until
+from dcsms_ros.ros.context import ros_context, spin_until
 from dcsms_ros.rosenv import DEFAULT_RANGE, DISCOVERY_RANGE_VAR
 
 

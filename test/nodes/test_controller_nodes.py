@@ -13,9 +13,9 @@ from std_srvs.srv import SetBool
 from dcsms_ros.core import topics
 from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
-from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
 from dcsms_ros.nodes.sensor_decoupling import SensorDecouplingNode
+from dcsms_ros.ros import qos
 
 
 def _probe(ctx, msg_type, topic, lockstep=True):

@@ -26,7 +26,7 @@ from std_srvs.srv import SetBool, Trigger
 from dcsms_ros.analysis.reader import read_topics
 from dcsms_ros.cli import main
 from dcsms_ros.core import topics
-from dcsms_ros.nodes import qos
+from dcsms_ros.ros import qos
 
 DCSMS = [sys.executable, "-m", "dcsms_ros.cli"]
 TABLE1 = Path(__file__).resolve().parents[2] / "config" / "table1.yaml"

@@ -21,7 +21,7 @@ from std_srvs.srv import Trigger
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.params_file import parse_params_text
-from dcsms_ros.nodes import qos
+from dcsms_ros.ros import qos
 
 REPO = Path(__file__).resolve().parents[2]
 UNSTABLE = REPO / "test" / "fixtures" / "tem_unstable.yaml"

@@ -17,7 +17,7 @@ from sensor_msgs.msg import JointState
 from dcsms_ros.core import topics
 from dcsms_ros.core.engine import simulate
 from dcsms_ros.core.modes import Mode, controller_ids
-from dcsms_ros.nodes import qos
+from dcsms_ros.ros import qos
 
 DURATION_S = 2.0
 #: Wall-clock bound of the whole run (startup ~10 s, a loaded 2-core box ~100-400 samples/s).

@@ -13,10 +13,10 @@ from sensor_msgs.msg import JointState
 from dcsms_ros.core import topics
 from dcsms_ros.core.engine import simulate
 from dcsms_ros.core.modes import Mode
-from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
 from dcsms_ros.nodes.plant_simulator import PlantSimulatorNode
 from dcsms_ros.nodes.sensor_decoupling import SensorDecouplingNode
+from dcsms_ros.ros import qos
 
 
 def test_absent_controller_times_out_and_equals_batch_without_it(ctx, cfg):

@@ -18,10 +18,10 @@ from std_srvs.srv import Trigger
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.modes import Mode
-from dcsms_ros.nodes import qos
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
 from dcsms_ros.nodes.mode_switch import ModeSwitchNode
-from dcsms_ros.nodes.msgs import status
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.msgs import status
 
 
 class Graph:

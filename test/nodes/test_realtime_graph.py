@@ -13,7 +13,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from node_helpers import executor_for
 
 from dcsms_ros.core import topics
-from dcsms_ros.nodes import qos
+from dcsms_ros.ros import qos
 
 DCSMS = [sys.executable, "-m", "dcsms_ros.cli"]
 

@@ -15,10 +15,10 @@ import rclpy
 from rclpy.node import Node
 from std_msgs.msg import Header
 
+from dcsms_ros.cli.deploy import children
 from dcsms_ros.graph import define_graph
-from dcsms_ros.nodes.deploy import children
-from dcsms_ros.nodes.hotpath import GIL_SWITCH_S, DrivenContext, HotPath
-from dcsms_ros.nodes.runtime import RT_PRIORITY_ENV, rt_priority_from_env
+from dcsms_ros.ros.hotpath import GIL_SWITCH_S, DrivenContext, HotPath
+from dcsms_ros.ros.runtime import RT_PRIORITY_ENV, rt_priority_from_env
 
 
 def _policy(pid: int, tid: int) -> tuple[int, str]:

@@ -21,9 +21,9 @@ from pathlib import Path
 import pytest
 import yaml
 
+from dcsms_ros.cli.deploy import node_argv
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.graph import define_graph
-from dcsms_ros.nodes.deploy import node_argv
 
 SIDE_A = ("plant_simulator", "sensor_decoupling")  # the "rig" side
 SIDE_B = ("fb_stage1", "fb_stage2", "ff_stage1", "mode_switch")  # the "control PC" side
@@ -37,7 +37,7 @@ PROBE = textwrap.dedent("""
     import numpy as np, rclpy
     from rclpy.context import Context
     from sensor_msgs.msg import JointState
-    from dcsms_ros.nodes import qos
+    from dcsms_ros.ros import qos
     ctx = Context(); rclpy.init(args=[], context=ctx)
     node = rclpy.create_node("two_host_probe", context=ctx)
     got = []

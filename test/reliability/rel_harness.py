@@ -25,12 +25,12 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
+from dcsms_ros.cli.deploy import Child, child_env, children
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.graph import define_graph
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.deploy import Child, child_env, children
+from dcsms_ros.ros import qos
 
 REPO = Path(__file__).resolve().parents[2]
 TABLE1 = REPO / "config" / "table1.yaml"
@@ -162,7 +162,7 @@ class Graph:
 
 def _deep(depth: int = 5000, reliable: bool = True) -> QoSProfile:
     """A deep reader; a per-sample stream's must be best effort (the real-time writers are: a
-    reliable reader would not match them, see nodes/qos.py)."""
+    reliable reader would not match them, see ros/qos.py)."""
     return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,
                       reliability=ReliabilityPolicy.RELIABLE if reliable
                       else ReliabilityPolicy.BEST_EFFORT)

@@ -29,8 +29,8 @@ from dcsms_ros.core.config import SystemConfig, config_from_flat
 from dcsms_ros.core.modes import Mode, parse_mode
 from dcsms_ros.core.params_file import parse_params_text
 from dcsms_ros.errors import DcsmsError
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.params import declare_local
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.params import declare_local
 
 
 class StabilityGuard:

@@ -38,21 +38,21 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller, retuned
 from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.errors import ConfigError
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.guard import MAX_VELOCITY_MPS, InputGuard
-from dcsms_ros.nodes.hotpath import HotPath
-from dcsms_ros.nodes.msgs import node_status, to_stamp
-from dcsms_ros.nodes.params import (
+from dcsms_ros.protocols.gate import MATCH_TIMEOUT_S
+from dcsms_ros.protocols.pacer import Watchdog
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.msgs import node_status, to_stamp
+from dcsms_ros.ros.params import (
     NodeConfig,
     answerer,
     declare_local,
     declare_observed,
     declare_schedule,
 )
-from dcsms_ros.nodes.runtime import Stoppable
-from dcsms_ros.nodes.stability import StabilityGuard
-from dcsms_ros.protocols.gate import MATCH_TIMEOUT_S
-from dcsms_ros.protocols.pacer import Watchdog
+from dcsms_ros.ros.runtime import Stoppable
+from dcsms_ros.ros.stability import StabilityGuard
 
 STEADY = Clock(clock_type=ClockType.STEADY_TIME)
 

@@ -1,9 +1,10 @@
 """The one way this package starts and stops rclpy: context, signals, spin loop, shutdown.
 
 Every process that talks ROS goes through :func:`ros_context`: the node processes
-(:func:`.runtime.run`), the composed graph (:mod:`.container`), the recorder
-(:func:`.recorder.record`), the supervisor of ``dcsms up`` (:func:`.monitor.monitoring`) and the
-service client of ``dcsms mode``. It holds Jazzy's rules in one place:
+(:func:`.runtime.run`), the composed graph (:mod:`dcsms_ros.nodes.container`), the recorder
+(:func:`dcsms_ros.nodes.recorder.record`), the supervisor of ``dcsms up``
+(:func:`dcsms_ros.cli.monitor.monitoring`) and the service client of ``dcsms mode``. It holds
+Jazzy's rules in one place:
 
 - Discovery stays on this machine unless the user chose a range
   (:func:`dcsms_ros.rosenv.keep_discovery_local`), set before the first participant exists.

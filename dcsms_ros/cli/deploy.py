@@ -5,8 +5,9 @@ Two deployments of the same nodes:
 * **one process per node** (the ``ros2 run`` deployment, ``dcsms up``'s default): each node
   runs as ``python -m dcsms_ros.nodes.<executable> --ros-args -r __node:=<name> -r
   __ns:=<namespace> --params-file <file>``;
-* **composed** (``--composed``): every node in one process (:mod:`.container`), on one rclpy
-  context, the per-sample cycle run by one driver thread.
+* **composed** (``--composed``): every node in one process
+  (:mod:`dcsms_ros.nodes.container`), on one rclpy context, the per-sample cycle run by one
+  driver thread.
 
 Both read one params file (:meth:`GraphSpec.params_document`). A recorder (``--record``) runs as
 its own process, or inside the composed process (``recorder="composed"``). Stop: every process
@@ -178,7 +179,7 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     """
     # deferred: the monitor is an rclpy node, and the CLI imports this module (Deployment,
     # RECORDERS) to build its parser, which `dcsms --help` must not pay for
-    from dcsms_ros.nodes.monitor import monitoring  # noqa: PLC0415
+    from dcsms_ros.cli.monitor import monitoring  # noqa: PLC0415
 
     how.log_dir.mkdir(parents=True, exist_ok=True)
     params_file, graph_file = write_files(spec, how.log_dir)

@@ -32,8 +32,8 @@ from std_srvs.srv import Trigger
 from dcsms_ros.core import topics
 from dcsms_ros.core.modes import Mode, controller_ids
 from dcsms_ros.graph import GraphSpec
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.bootstrap import ros_context, spin_until
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.context import ros_context, spin_until
 
 #: Seconds between status lines on a terminal, and when the output is a file or a pipe.
 STATUS_PERIOD_TTY = 0.5

@@ -11,7 +11,7 @@ from dcsms_ros.analysis.replay import load_ground, parse_ground_spec
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import controller_ids
 from dcsms_ros.errors import ConfigError
-from dcsms_ros.nodes.params import declare_local
+from dcsms_ros.ros.params import declare_local
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ thread serves them from a minimal wait set. Measured (``bench/pingpong.py``, two
 ``spin()`` made 1 round trip in 3-6 s. The executor thread wakes a few times a second, so
 replacing it is not worth a second executor kind here (docs/performance.md).
 
-Start and shutdown go through :func:`.bootstrap.ros_context`: SIGINT and SIGTERM set a flag
+Start and shutdown go through :func:`.context.ros_context`: SIGINT and SIGTERM set a flag
 (rclpy's handlers are not installed), the spin loop ends, the node publishes its final reports
 (:func:`close_nodes`) and is destroyed, and the context is shut down: exit status 0, no
 traceback. A configuration error while building the node is one line on stderr and exit
@@ -32,7 +32,7 @@ from rclpy.node import Node
 
 from dcsms_ros import graph
 from dcsms_ros.errors import DcsmsError
-from dcsms_ros.nodes.bootstrap import STOP_EXCEPTIONS, ros_context, spin_until
+from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
 
 #: Exit status of a configuration error (the CLI's convention).
 EXIT_CONFIG = 2

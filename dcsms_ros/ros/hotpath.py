@@ -10,14 +10,14 @@ those subscriptions and a stop guard condition (as :func:`rclpy.wait_for_message
 every queued message with ``take_message`` and runs its handler under the node's lock.
 Services, parameters, timers and ``/clock`` stay with the normal executor, which wakes rarely.
 
-One process per node: each node's :class:`HotPath` gets its own loop. Composed (several nodes
-on one context, :mod:`.container`): the host creates the nodes on a :class:`DrivenContext`,
-whose :attr:`~DrivenContext.driver` loop serves the hot paths of every node of the context, in
-one thread (the driver belongs to the context, not to the module: nothing to register or
-forget). One sample cycles plant -> decoupling -> controllers -> plant through the nodes' real
-publishers and subscriptions without a thread switch: in one process a published message is
-in the other node's subscription at once, and the loop keeps serving until a pass over all
-subscriptions takes nothing.
+One process per node: each node's :class:`HotPath` gets its own loop. Composed (several nodes on
+one context, :mod:`dcsms_ros.nodes.container`): the host creates the nodes on a
+:class:`DrivenContext`, whose :attr:`~DrivenContext.driver` loop serves the hot paths of every node
+of the context, in one thread (the driver belongs to the context, not to the module: nothing to
+register or forget). One sample cycles plant -> decoupling -> controllers -> plant through the
+nodes' real publishers and subscriptions without a thread switch: in one process a published
+message is in the other node's subscription at once, and the loop keeps serving until a pass over
+all subscriptions takes nothing.
 
 ``DCSMS_HOT_PATH=0`` in the environment turns it off: the subscriptions are then ordinary
 executor subscriptions with the same handlers (the benchmark compares both in one run).
@@ -313,7 +313,7 @@ class HotLoop:
 
 class DrivenContext(Context):
     """An rclpy context whose nodes' hot paths one :class:`HotLoop`, :attr:`driver`, serves
-    (composed deployment). The host passes it to :func:`.bootstrap.ros_context` and to every
+    (composed deployment). The host passes it to :func:`.context.ros_context` and to every
     node it creates, then starts :attr:`driver` once the nodes exist and stops it before they
     are destroyed.
 

@@ -30,11 +30,11 @@ from std_msgs.msg import Header
 from dcsms_ros.cdr import TWIST_STAMPED, JointStateWriter, StampedWriter, header_bytes
 from dcsms_ros.core import topics
 from dcsms_ros.core.simulator import PlantSimulator
-from dcsms_ros.nodes import qos
-from dcsms_ros.nodes.msgs import node_status, sample_ns, to_stamp
-from dcsms_ros.nodes.params import declare_observed, outside_graph, publishers_matched
 from dcsms_ros.protocols.barrier import LockstepBarrier
 from dcsms_ros.protocols.runstats import LatencyHistogram
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.msgs import node_status, sample_ns, to_stamp
+from dcsms_ros.ros.params import declare_observed, outside_graph, publishers_matched
 
 #: Seconds the handshake waits after the graph looks connected, so DDS endpoints match too.
 SETTLE_S = 0.2
