@@ -7,7 +7,9 @@ the bytes to the endpoints of the topic in publication order:
 
 * **handlers** (:meth:`LocalBus.subscribe`): the control path, called at once (under the
   endpoint's lock). A handler may publish: its messages queue behind the current ones, so a
-  lockstep cycle plant -> decoupling -> controllers -> plant runs without recursion.
+  lockstep cycle plant -> decoupling -> controllers -> plant runs without recursion. A
+  ``latest_only`` handler (a real-time reader, keep-last 1) skips a message when a newer one of
+  the topic is already queued, as its DDS reader's history would have replaced it.
 * **inboxes** (:meth:`LocalBus.inbox`): a queue its owner empties when it likes (the trip
   checker's blocks, the real-time plant's held forces), each message with its publication time.
 * **observers** (:meth:`LocalBus.observe`): a recorder. They are served after the control
@@ -51,14 +53,20 @@ class Endpoint:
         inbox.
     lock : context manager or None
         Held around each call of ``handler``.
+    latest_only : bool
+        Handlers: skip a message when a newer one of the topic is queued.
     delivered : int
         Messages handed to this endpoint.
+    skipped : int
+        Messages skipped for a newer one (``latest_only``).
     """
 
     topic: str
     handler: Callable[..., None] | None = None
     lock: Any = None
+    latest_only: bool = False
     delivered: int = 0
+    skipped: int = 0
 
 
 @dataclass
@@ -91,6 +99,36 @@ class _Topic:
     writers: int = 0
     readers: int = 0
     published: int = 0
+    queued: int = 0
+
+
+class HeldHistory:
+    """The newest ``depth`` messages a keep-last writer did not publish on DDS (no reader
+    outside the process was matched), so that the first remote reader still gets the history
+    a transient-local writer promises: :meth:`release` them before the next DDS publication.
+    Messages that went to DDS are in the DDS writer's own history and are not held again.
+
+    Parameters
+    ----------
+    depth : int
+        The writer's history depth (messages).
+    """
+
+    def __init__(self, depth: int) -> None:
+        self._held: deque[bytes] = deque(maxlen=max(int(depth), 1))
+
+    def __len__(self) -> int:
+        return len(self._held)
+
+    def hold(self, data: bytes) -> None:
+        """Keep ``data`` (published in the process only); the oldest goes beyond ``depth``."""
+        self._held.append(data)
+
+    def release(self) -> list[bytes]:
+        """The held messages, oldest first, and forget them."""
+        out = list(self._held)
+        self._held.clear()
+        return out
 
 
 class BusWriter:
@@ -113,6 +151,7 @@ class BusWriter:
         """Queue ``data`` (serialized) for every in-process endpoint of the topic."""
         self.seq += 1
         self.topic.published += 1
+        self.topic.queued += 1
         bus = self.bus
         self._queue.append((self.topic, data, self.seq, bus.clock()))
         if bus.wake is not None and threading.get_ident() != bus.owner:
@@ -166,10 +205,11 @@ class LocalBus:
         t = self._topics.get(topic)
         return t is not None and t.writers > 0
 
-    def subscribe(self, topic: str, handler: Callable[[bytes], None],
-                  lock: Any = None) -> Endpoint:
-        """A control-path endpoint: ``handler(data)`` for each message, at once."""
-        ep = Endpoint(topic, handler, lock)
+    def subscribe(self, topic: str, handler: Callable[[bytes], None], lock: Any = None,
+                  latest_only: bool = False) -> Endpoint:
+        """A control-path endpoint: ``handler(data)`` for each message (the newest only with
+        ``latest_only``), at once."""
+        ep = Endpoint(topic, handler, lock, latest_only)
         t = self._topic(topic)
         t.handlers = (*t.handlers, ep)
         return ep
@@ -225,8 +265,12 @@ class LocalBus:
         n = 0
         while q and n < limit and not self.closed:
             topic, data, seq, t_ns = q.popleft()
+            topic.queued -= 1
             n += 1
             for ep in topic.handlers:
+                if ep.latest_only and topic.queued:
+                    ep.skipped += 1
+                    continue
                 ep.delivered += 1
                 assert ep.handler is not None
                 if ep.lock is None:
@@ -270,6 +314,7 @@ class LocalBus:
         n = 0
         while q:
             topic, data, seq, t_ns = q.popleft()
+            topic.queued -= 1
             n += 1
             for box in topic.inboxes:
                 box.delivered += 1
@@ -279,4 +324,5 @@ class LocalBus:
         return n
 
 
-__all__ = ["DISPATCH_LIMIT", "OBSERVER_BATCH", "BusWriter", "Endpoint", "Inbox", "LocalBus"]
+__all__ = ["DISPATCH_LIMIT", "OBSERVER_BATCH", "BusWriter", "Endpoint", "HeldHistory", "Inbox",
+           "LocalBus"]

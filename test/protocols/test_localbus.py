@@ -6,7 +6,7 @@ import threading
 
 import pytest
 
-from dcsms_ros.protocols.localbus import LocalBus
+from dcsms_ros.protocols.localbus import HeldHistory, LocalBus
 
 
 class Ticks:
@@ -175,3 +175,37 @@ def test_dispatch_limit_leaves_the_rest_queued() -> None:
         w.publish(b"%d" % k)
     assert [bus.dispatch(limit=10) for _ in range(4)] == [10, 10, 5, 0]
     assert got == [b"%d" % k for k in range(25)] and not bus.pending
+
+
+@pytest.mark.parametrize("published, depth", [(3, 5), (12, 5)])
+def test_held_history_keeps_the_newest_depth_messages_until_released(published: int,
+                                                                     depth: int) -> None:
+    """What a transient-local writer published in the process only: the newest ``depth``,
+    oldest first, once; nothing is released twice."""
+    h = HeldHistory(depth)
+    for k in range(published):
+        h.hold(b"%d" % k)
+    assert len(h) == min(published, depth)
+    assert h.release() == [b"%d" % k for k in range(max(published - depth, 0), published)]
+    assert h.release() == [] and len(h) == 0
+
+
+def test_latest_only_handler_skips_what_a_newer_message_replaces() -> None:
+    """A burst of 5 samples published before a dispatch (a real-time catch-up): a keep-last-1
+    handler gets the newest only and counts 4 skipped; a keep-all handler and an observer get
+    all 5; a burst of 1 is never skipped."""
+    bus = LocalBus()
+    w = bus.advertise("/raw")
+    newest: list[bytes] = []
+    every: list[bytes] = []
+    seen: list[bytes] = []
+    ep = bus.subscribe("/raw", newest.append, latest_only=True)
+    bus.subscribe("/raw", every.append)
+    bus.observe("/raw", lambda d, s, t: seen.append(d))
+    for k in range(5):
+        w.publish(b"%d" % k)
+    bus.dispatch()
+    w.publish(b"5")
+    bus.dispatch()
+    assert newest == [b"4", b"5"] and ep.skipped == 4 and ep.delivered == 2
+    assert every == seen == [b"%d" % k for k in range(6)]
