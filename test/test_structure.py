@@ -282,6 +282,9 @@ NODE_EXCEPTIONS: dict[str, str] = {
         "_switch_lock serialises a user's switch, a trip and the supervisor's switch, which "
         "run on executor threads and on the hot thread (lockstep trip: the controllers are "
         "disabled before the plant hears the verdict, so the switch must block there)",
+    "dcsms_ros.nodes.recorder:threads":
+        "composed, the bag is written by the executor (topics from other processes) and by the "
+        "driver thread (in-process delivery, ros/intraprocess.py); one lock orders the writes",
 }
 
 

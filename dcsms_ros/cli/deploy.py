@@ -10,7 +10,8 @@ Two deployments of the same nodes:
   driver thread.
 
 Both read one params file (:meth:`GraphSpec.params_document`). A recorder (``--record``) runs as
-its own process, or inside the composed process (``recorder="composed"``). Stop: every process
+its own process, or inside the composed process (``recorder="composed"``, the default: it takes
+the messages from the process's bus, every one, without DDS). Stop: every process
 gets SIGINT, then SIGTERM and SIGKILL after a timeout; the graph first, so the recorder receives
 everything it published. Node logs go to files in ``log_dir`` unless ``verbose``.
 """
@@ -153,7 +154,7 @@ class Deployment:
     rt_priority: int = 0
     record: Path | None = None
     record_topics: Sequence[str] | None = None
-    recorder: str = "process"
+    recorder: str = "composed"
     log_dir: Path = Path("/tmp")
     verbose: bool = False
     connect_timeout: float = 30.0

@@ -41,10 +41,10 @@ def add_deploy_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--composed", action="store_true",
                    help="every node in one process, one driver thread for the sample cycle "
                    "(default: one process per node, as `ros2 run`)")
-    p.add_argument("--recorder", choices=RECORDERS, default="process",
-                   help="with --composed and a recording: the recorder in its own process "
-                   "(default) or in the composed one (real time only: in lockstep it falls "
-                   "behind and loses samples)")
+    p.add_argument("--recorder", choices=RECORDERS, default="composed",
+                   help="with --composed and a recording: the recorder in the composed process "
+                   "(default: it takes every message there, without DDS; lockstep ~3x faster, "
+                   "docs/performance.md) or in its own process")
     p.add_argument("--rt-priority", type=int, default=0, metavar="N",
                    help="run the hot thread of each control-path process (plant, decoupling, "
                    "controllers; composed: the driver thread) under SCHED_FIFO priority N (1-99; "
@@ -58,16 +58,10 @@ def add_deploy_options(p: argparse.ArgumentParser) -> None:
                    "(same as --set supervisor.enabled=false; docs/reliability.md)")
 
 
-def check_deploy_options(args: argparse.Namespace, schedule: str = "lockstep") -> str:
-    """Validate the deployment options of a run on ``schedule`` (``lockstep`` for sim and
-    demo); returns the namespace (absolute)."""
+def check_deploy_options(args: argparse.Namespace) -> str:
+    """Validate the deployment options of a run; returns the namespace (absolute)."""
     if not 0 <= args.rt_priority <= 99:
         raise DcsmsError(f"--rt-priority {args.rt_priority}: must be 0 (off) or 1..99")
-    if args.recorder == "composed" and args.composed and schedule == "lockstep":
-        # measured: the in-process recorder, starved by the driver thread, kept 89,061 of
-        # 220,000 messages of a 10 s lockstep run (docs/performance.md); refuse, never lose
-        raise DcsmsError("--recorder composed loses samples of a lockstep run (the driver "
-                         "thread starves it); use --recorder process")
     return topics.check_namespace(args.namespace)
 
 
@@ -184,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
     mode = parse_mode(args.mode)
     cfg = load_cfg(args)
     events = parse_schedule(args.switches)
-    check_deploy_options(args, args.schedule)
+    check_deploy_options(args)
     if args.duration is not None and not args.duration > 0:
         raise DcsmsError(f"--duration {args.duration}: must be > 0")
     if args.record is not None and args.record.exists():

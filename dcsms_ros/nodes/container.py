@@ -10,14 +10,15 @@ thread (the nodes live on a
 :class:`~dcsms_ros.ros.hotpath.DrivenContext`, which holds it). In lockstep the
 plant publishes sample k, the decoupling takes it and answers, each controller takes that
 answer and answers in turn, and the plant takes the forces and publishes k+1 - every hop
-through the nodes' real publishers and subscriptions, so a subscriber in another process (a
-recorder, ``ros2 topic echo``) sees every message; in one process a published message is in
-the other node's subscription at once, which makes a hop cost microseconds instead of a
-process switch. In real time the plant's pacer runs the same cycle at its deadlines. Services,
-parameters, timers, ``/clock`` and the mode switch stay on a multi-threaded executor.
+handed over in the process (the context's bus, :mod:`dcsms_ros.ros.intraprocess`), and
+published on DDS too while a subscriber in another process (a recorder, ``ros2 topic echo``)
+is matched, so it sees every message. In real time the plant's pacer runs the same cycle at
+its deadlines. Services, parameters, timers, ``/clock`` and the mode switch stay on a
+multi-threaded executor.
 
 ``--rt-priority N`` puts the driver thread (only it) under SCHED_FIFO. ``--record OUT
-[TOPIC ...]`` runs the recorder node in this process too (``dcsms up --recorder composed``).
+[TOPIC ...]`` runs the recorder node in this process too (``dcsms up --recorder composed``):
+it takes the graph's messages from the bus, every one of them, in lockstep and in real time.
 Exit status: 0 after SIGINT/SIGTERM or a finished run, 2 after a configuration error (one line).
 """
 
@@ -86,6 +87,8 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
             nodes = create_nodes(spec, ctx)
             for nd in nodes:
                 executor.add_node(nd)
+            if recorder is not None:  # the in-process topics from their first message on
+                recorder.discover()
             loop.start(rt_priority)
             if loop.rt_warning:
                 nodes[-1].get_logger().warning(loop.rt_warning)
@@ -107,6 +110,8 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
             for nd in reversed(nodes):
                 quiesce(executor, nd, timeout_s=1.0)
             close_nodes(nodes[::-1])
+            if ctx.bus is not None:  # what is still queued (final reports) to the recorder
+                ctx.bus.close()
             if recorder is not None:
                 recorder.drain(executor, since)
                 print(recorder.finish().text(), flush=True)

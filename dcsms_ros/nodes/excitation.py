@@ -26,7 +26,6 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
-from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import SetBool
@@ -39,6 +38,7 @@ from dcsms_ros.errors import ConfigError
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.intraprocess import SamplePublisher
 from dcsms_ros.ros.msgs import node_status, to_stamp
 from dcsms_ros.ros.params import (
     NodeConfig,
@@ -89,8 +89,8 @@ class ExcitationNode(Node, Stoppable):
         self.tripped = False
         self.samples = 0
         self.names = topics.Names(self.get_namespace())
-        self.pub = self.create_publisher(WrenchStamped, topics.LOCAL.force(topics.EXCITATION_ID),
-                                         qos.stream_pub(self.lockstep))
+        self.pub = self.hot.publisher(WrenchStamped, topics.LOCAL.force(topics.EXCITATION_ID),
+                                      qos.stream_pub(self.lockstep))
         self.answers = answerer(self, self.pub.publish, self.lockstep, [self.pub],
                                 self.observed)
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
@@ -168,7 +168,7 @@ class ExcitationNode(Node, Stoppable):
             "out_of_order": self.answers.out_of_order, "tripped": self.tripped})]
         self.pub_diag.publish(arr)
 
-    def final_reports(self) -> list[Publisher]:
+    def final_reports(self) -> list[SamplePublisher]:
         """Publish the final counters; returns the publishers whose readers should
         acknowledge before the node goes (a clean exit loses nothing)."""
         self._report()

@@ -168,8 +168,8 @@ class ModeSwitchNode(Node):
                 self._force_sub = self.hot.detached(JointState, topics.LOCAL.actuators_applied,
                                                      fq, raw=True)
             if self.lockstep:
-                self.pub_checked = self.create_publisher(Header, topics.LOCAL.trip_checked,
-                                                         qos.stream_pub(True))
+                self.pub_checked = self.hot.publisher(Header, topics.LOCAL.trip_checked,
+                                                      qos.stream_pub(True))
                 self.hot.subscribe(Header, topics.LOCAL.trip_check, self._on_check,
                                     qos.stream_sub(True), raw=True)
                 if not self.hot.on:  # the executor retries what the hot loop's tick would
@@ -315,7 +315,7 @@ class ModeSwitchNode(Node):
     def _drain(self) -> None:
         if self.sfeed is None:
             for i, sub in enumerate(self._trip_subs):
-                HotPath.drain(sub, partial(self._feed_trip, i))
+                self.hot.drain(sub, partial(self._feed_trip, i))
             return
         # supervised: each queue decoded as one batch (4 streams per sample; ~1 us a message
         # against ~2.5 us one by one)
@@ -328,10 +328,9 @@ class ModeSwitchNode(Node):
         b = self._take(self._force_sub, self._forces)
         self.sfeed.add_forces(b.stamp_ns, b.fields["effort"])
 
-    @staticmethod
-    def _take(sub: Any, reader: BatchReader) -> Batch:
+    def _take(self, sub: Any, reader: BatchReader) -> Batch:
         bufs: list[bytes] = []
-        HotPath.drain(sub, bufs.append)
+        self.hot.drain(sub, bufs.append)
         return reader.read(bufs)
 
     def _feed_trip(self, i: int, buf: bytes) -> None:

@@ -31,7 +31,6 @@ import numpy as np
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.publisher import Publisher
 from std_msgs.msg import Header
 
 from dcsms_ros.cdr import WRENCH_STAMPED, read_frame, read_header, read_stamped
@@ -47,6 +46,7 @@ from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.guard import FORCE_LIMIT_FACTOR, InputGuard
 from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.intraprocess import SamplePublisher
 from dcsms_ros.ros.params import SELECTORS, NodeConfig, declare_schedule
 from dcsms_ros.ros.runtime import Stoppable, main_for
 
@@ -171,9 +171,7 @@ class PlantSimulatorNode(Node, Stoppable):
         if self.lockstep:
             return self._lockstep(time.monotonic())
         for cid, sub in self._force_subs:
-            with sub.handle:
-                while (got := sub.handle.take_message(WrenchStamped, True)) is not None:
-                    self._on_force(cid, got[0], self.io.arrival(got[1]))
+            self.hot.drain_timed(sub, partial(self._on_drained, cid))
         self._realtime(time.monotonic())
         return self.pacer.wait_s(time.monotonic(), self.sim.k)
 
@@ -249,6 +247,10 @@ class PlantSimulatorNode(Node, Stoppable):
         else:
             self._ask()
 
+    def _on_drained(self, cid: str, buf: bytes, t_ns: int) -> None:
+        """A force taken from the queue at a sample (real time); ``t_ns``: its arrival."""
+        self._on_force(cid, buf, self.io.arrival(t_ns))
+
     def _on_checked(self, buf: bytes) -> None:
         """mode_switch judged the trip checkpoint ending at ``stamp``."""
         stamp, _ = read_header(buf)
@@ -279,7 +281,7 @@ class PlantSimulatorNode(Node, Stoppable):
         """Lockstep timeouts per controller."""
         return {c: self.barrier.faults[c] for c in self.controllers}
 
-    def final_reports(self) -> list[Publisher]:
+    def final_reports(self) -> list[SamplePublisher]:
         """Publish what is held back and the final counters; returns the publishers whose
         readers should acknowledge before the node goes (a clean exit loses nothing)."""
         with self._lock:

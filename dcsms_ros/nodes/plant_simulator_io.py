@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
-from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Header, Int64
@@ -39,6 +38,7 @@ from dcsms_ros.ros.connectivity import (
     outside_graph,
     publishers_matched,
 )
+from dcsms_ros.ros.intraprocess import SamplePublisher
 from dcsms_ros.ros.msgs import node_status, sample_ns, to_stamp
 from dcsms_ros.ros.params import declare_observed
 
@@ -69,17 +69,19 @@ class PlantIO:
         self.bodies = topics.body_names(sim.cfg.plant.num_stages)
         self.observed = declare_observed(node)
         self.pub_clock = node.create_publisher(ClockMsg, topics.CLOCK, qos.clock())
-        self.pub_raw = node.create_publisher(JointState, names.sensors_raw, pub_qos)
+        # per-sample streams: composed, handed to in-process readers directly (hotpath.py)
+        pub = node.hot.publisher
+        self.pub_raw = pub(JointState, names.sensors_raw, pub_qos)
         # durable like the velocities: mode_switch's supervisor needs every sample from 0
-        self.pub_applied = node.create_publisher(JointState, names.actuators_applied,
-                                                 qos.stream_pub(node.lockstep, durable=True))
-        self.pub_truth = [node.create_publisher(TwistStamped, names.truth(b), pub_qos)
+        self.pub_applied = pub(JointState, names.actuators_applied,
+                               qos.stream_pub(node.lockstep, durable=True))
+        self.pub_truth = [pub(TwistStamped, names.truth(b), pub_qos)
                           for b in self.bodies] if opts.publish_truth else []
         self.pub_diag = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         # what a supervisor decides on travels on typed topics, not in the diagnostics' text
         self.pub_held = node.create_publisher(Int64, names.plant_held, qos.latched())
         self.pub_finished = node.create_publisher(Bool, names.plant_finished, qos.latched())
-        self.pub_check = (node.create_publisher(Header, names.trip_check, qos.stream_pub(True))
+        self.pub_check = (pub(Header, names.trip_check, qos.stream_pub(True))
                           if trip_gate else None)
         # the per-sample messages are serialized here directly (dcsms_ros.cdr: no message objects)
         self._w_raw = JointStateWriter([c.name for c in sim.channels], "velocity")
@@ -212,9 +214,10 @@ class PlantIO:
                                            f"{self._nonfinite_seen})", throttle_duration_sec=2.0)
 
     # -- events ------------------------------------------------------------------------------
-    def arrival(self, info: dict[str, Any]) -> int:
-        """Monotonic ns of a drained message's DDS reception."""
-        return int(info["received_timestamp"]) + self._wall_to_mono
+    def arrival(self, wall_ns: int) -> int:
+        """Monotonic ns of a drained message's arrival, ``wall_ns`` (system clock, ns: its DDS
+        reception, or its in-process publication)."""
+        return wall_ns + self._wall_to_mono
 
     def latency(self, cid: str, stamp: int, rx_ns: int | None) -> int:
         """The arrival time (monotonic ns) of a force; records its control latency (sample
@@ -299,7 +302,7 @@ class PlantIO:
             for c, s in states.items()]
         self.pub_diag.publish(arr)
 
-    def closing(self) -> list[Publisher]:
+    def closing(self) -> list[SamplePublisher]:
         """Write the timing file (benchmarks); returns the publishers to wait for."""
         if self.node.opts.timing_file:
             arrays: dict[str, Any] = {

@@ -8,8 +8,13 @@ started are recorded), history keep-last ``queue_depth`` (:data:`DEFAULT_DEPTH`)
 
 Messages are never deserialised: the callback receives the CDR bytes (``raw=True``) and hands
 them to :class:`~dcsms_ros.analysis.bagio.BagWriter` with the DDS receive time as the bag time
-(what ``ros2 bag record`` logs). It only reads the header stamp of stamped types
-(:func:`dcsms_ros.cdr.read_stamp`) for the time-gap check (:mod:`dcsms_ros.analysis.gaps`).
+(what ``ros2 bag record`` logs). In a composed process (``dcsms up --recorder composed``) a
+topic written in the same process is taken from the process's bus instead
+(:mod:`dcsms_ros.protocols.localbus`): the bytes as published, every message (no DDS queue to
+overflow), its publication time as the bag time, on the driver thread after the control path;
+its DDS reader stays (the graph shows the recorder) but is never read. It only reads the
+header stamp of stamped types (:func:`dcsms_ros.cdr.read_stamp`) for the time-gap check
+(:mod:`dcsms_ros.analysis.gaps`).
 
 ``/clock`` is not recorded by default (default ``topics`` is ``/dcsms/*``): at 2 kHz it only
 duplicates the header stamps every ``/dcsms`` topic carries and would cost ~7 % of the
@@ -33,6 +38,7 @@ from __future__ import annotations
 import fnmatch
 import importlib
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -47,6 +53,7 @@ from dcsms_ros.cdr import CLOCK, read_stamp
 from dcsms_ros.errors import BagError, DcsmsError
 from dcsms_ros.ros.connectivity import has_reader
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
+from dcsms_ros.ros.hotpath import DetachedGroup, DrivenContext
 
 NODE_NAME = "dcsms_recorder"
 DEFAULT_TOPICS = ("/dcsms/*",)
@@ -141,11 +148,16 @@ class Recorder(Node):
         self.stats: dict[str, TopicStats] = {}
         self._skipped: set[str] = set()
         self._subs: list[Any] = []
+        # the bag and the counts are written by the executor and (composed) the driver thread
+        self._lock = threading.Lock()
+        ctx = self.context
+        self.bus = ctx.bus if isinstance(ctx, DrivenContext) else None
+        self._open = True
         self._t_start = time.monotonic()
         self._reported = (0, self._t_start, 0)
         self.total = 0
-        self._discover()
-        self.create_timer(discovery_s, self._discover)
+        self.discover()
+        self.create_timer(discovery_s, self.discover)
         if report_s > 0:
             self.create_timer(report_s, self._report)
 
@@ -154,7 +166,10 @@ class Recorder(Node):
     def _wanted(self, topic: str) -> bool:
         return any(fnmatch.fnmatchcase(topic, pat) for pat in self.patterns)
 
-    def _discover(self) -> None:
+    def discover(self) -> None:
+        """Subscribe to the wanted topics that have publishers now (also every
+        ``discovery_period_s``; a composed host calls it once its nodes exist, so the
+        recorder observes their topics from their first message on)."""
         for topic, types in self.get_topic_names_and_types():
             if topic in self._skipped or not self._wanted(topic):
                 continue
@@ -176,7 +191,8 @@ class Recorder(Node):
     def _subscribe(self, topic: str, msgtype: str, offered: list[Any]) -> None:
         try:
             cls = _msg_class(msgtype)
-            self.writer.add_topic(topic, msgtype, qos_yaml(offered))
+            with self._lock:
+                self.writer.add_topic(topic, msgtype, qos_yaml(offered))
         except (ImportError, AttributeError, ValueError, BagError) as exc:
             self._skip(topic, str(exc))
             return
@@ -184,12 +200,35 @@ class Recorder(Node):
         self.stats[topic] = st
         qos = subscription_qos(offered, self.depth)
         holder: list[Any] = []
-        holder.append(self.create_subscription(cls, topic, self._callback(topic, st, holder),
-                                               qos, raw=True))
+        local = self.bus is not None and self.bus.has_publisher(topic)
+        if self.bus is not None and local:
+            # before the DDS reader exists: the writers' first-sample gate waits for that
+            self.bus.observe(topic, self._observer(topic, st), self._lock)
+            self.bus.add_reader(topic)
+            # never read: keep-last 1 holds the DDS copies a remote reader causes
+            holder.append(self.create_subscription(cls, topic, lambda m: None,
+                                                   subscription_qos(offered, 1), raw=True,
+                                                   callback_group=DetachedGroup()))
+        else:
+            holder.append(self.create_subscription(
+                cls, topic, self._callback(topic, st, holder), qos, raw=True))
         self._subs.append(holder[0])
         self.get_logger().info(
             f"recording {topic} [{msgtype}] ({qos.reliability.name.lower()}, "
-            f"{qos.durability.name.lower()})")
+            f"{qos.durability.name.lower()}{', in process' if local else ''})")
+
+    def _observer(self, topic: str, st: TopicStats) -> Any:
+        """The bus observer of a topic written in this process: ``cb(data, seq, t_ns)``."""
+        write, add, stamped = self.writer.write, st.add, st.stamped
+
+        def cb(data: bytes, seq: int, t_ns: int) -> None:
+            if not self._open:  # published after the bag was closed
+                return
+            write(topic, t_ns, data)
+            add(seq, read_stamp(data) if stamped else None, t_ns)
+            self.total += 1
+
+        return cb
 
     def _callback(self, topic: str, st: TopicStats, holder: list[Any]) -> Any:
         """A raw callback with message info, ``cb(cdr_bytes, info)`` (rclpy passes ``info``
@@ -207,18 +246,19 @@ class Recorder(Node):
                 recv)
 
         def cb(data: bytes, info: dict[str, Any]) -> None:
-            one(data, info)
-            n = 1
-            sub = holder[0]
-            with sub.handle:
-                take, msg_type = sub.handle.take_message, sub.msg_type
-                while n < GREEDY:
-                    got = take(msg_type, True)
-                    if got is None:
-                        break
-                    one(*got)
-                    n += 1
-            self.total += n
+            with self._lock:
+                one(data, info)
+                n = 1
+                sub = holder[0]
+                with sub.handle:
+                    take, msg_type = sub.handle.take_message, sub.msg_type
+                    while n < GREEDY:
+                        got = take(msg_type, True)
+                        if got is None:
+                            break
+                        one(*got)
+                        n += 1
+                self.total += n
 
         return cb
 
@@ -265,6 +305,8 @@ class Recorder(Node):
 
     def finish(self) -> Recording:
         """Close the bag (metadata, rename into place) and return the counts and gaps."""
+        with self._lock:
+            self._open = False
         for s in self.stats.values():
             s.finish()
         for sub in self._subs:

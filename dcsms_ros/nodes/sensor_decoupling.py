@@ -18,7 +18,6 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from rclpy.node import Node
-from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
 
 from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, StampedWriter
@@ -28,6 +27,7 @@ from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.intraprocess import SamplePublisher
 from dcsms_ros.ros.msgs import node_status, to_stamp
 from dcsms_ros.ros.params import (
     SELECTORS,
@@ -59,11 +59,11 @@ class SensorDecouplingNode(Node):
         self._index: dict[tuple[str, ...], np.ndarray] = {}
         self.writers = [StampedWriter(TWIST_STAMPED, b, self.dof) for b in self.bodies]
         # lockstep: transient local, so mode_switch's trip checker gets every sample from 0
-        self.pubs = [self.create_publisher(TwistStamped, topics.LOCAL.velocity(b),
-                                           qos.stream_pub(lockstep, durable=True))
+        self.hot = HotPath(self)  # _on_raw runs on the hot thread, under the path's lock
+        self.pubs = [self.hot.publisher(TwistStamped, topics.LOCAL.velocity(b),
+                                        qos.stream_pub(lockstep, durable=True))
                      for b in self.bodies]
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
-        self.hot = HotPath(self)  # _on_raw runs on the hot thread, under the path's lock
         self.hot.subscribe(JointState, topics.LOCAL.sensors_raw, self._on_raw,
                            qos.stream_sub(lockstep), raw=True)
         # lockstep: the first sample is answered only once every reader is matched
@@ -124,7 +124,7 @@ class SensorDecouplingNode(Node):
             "rejected_inputs": self.guard.rejected})]
         self.pub_diag.publish(arr)
 
-    def final_reports(self) -> list[Publisher]:
+    def final_reports(self) -> list[SamplePublisher]:
         """Publish the final counters; returns the publishers whose readers should
         acknowledge before the node goes (a clean exit loses nothing)."""
         self._report()

@@ -19,10 +19,10 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 from rclpy.node import Node
-from rclpy.publisher import Publisher
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.modes import ControllerId
+from dcsms_ros.ros.intraprocess import SamplePublisher
 
 #: Node names of the graph itself; a subscriber from any other node is an observer.
 GRAPH_NODES = ("plant_simulator", "sensor_decoupling", "mode_switch", "excitation")
@@ -71,12 +71,13 @@ def has_reader(node: Node, topic: str, reader: str) -> bool:
     return any(i.node_name == reader for i in node.get_subscriptions_info_by_topic(topic))
 
 
-def writer_matched(node: Node, pub: Publisher) -> bool:
+def writer_matched(node: Node, pub: SamplePublisher) -> bool:
     """True when ``pub``'s DDS writer has matched every reader of its topic ``node`` sees."""
     return pub.get_subscription_count() >= node.count_subscribers(pub.topic_name)
 
 
-def publishers_matched(node: Node, pubs: Sequence[Publisher], observed: Sequence[str]) -> bool:
+def publishers_matched(node: Node, pubs: Sequence[SamplePublisher],
+                       observed: Sequence[str]) -> bool:
     """True when each publisher has matched every reader this node's graph view shows, and
     each observed topic among them has a reader outside the graph."""
     for pub in pubs:

@@ -28,7 +28,6 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rclpy.node import Node
-from rclpy.publisher import Publisher
 from std_msgs.msg import Int64
 from std_srvs.srv import SetBool
 
@@ -45,6 +44,7 @@ from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.connectivity import has_reader, writer_matched
 from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.intraprocess import SamplePublisher
 from dcsms_ros.ros.msgs import node_status, to_stamp
 from dcsms_ros.ros.params import (
     NodeConfig,
@@ -101,8 +101,8 @@ class ControllerNode(Node, Stoppable):
         self.guard = InputGuard(self, f"{cid} velocity", MAX_VELOCITY_MPS)
         self.writer = StampedWriter(WRENCH_STAMPED, ControllerId.parse(cid).frame, self.dof)
         self.watchdog = Watchdog(cfg.control.input_timeout_s)
-        self.pub = self.create_publisher(WrenchStamped, topics.LOCAL.force(cid),
-                                         qos.stream_pub(self.lockstep))
+        self.pub = self.hot.publisher(WrenchStamped, topics.LOCAL.force(cid),
+                                      qos.stream_pub(self.lockstep))
         self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
         self.hot.subscribe(TwistStamped, topics.LOCAL.velocity(body), self._on_velocity,
                            qos.stream_sub(self.lockstep), raw=True)
@@ -248,7 +248,7 @@ class ControllerNode(Node, Stoppable):
                 "stale_events": self.watchdog.stale_events, "boot_ns": self.boot_ns})]
         self.pub_diag.publish(arr)
 
-    def final_reports(self) -> list[Publisher]:
+    def final_reports(self) -> list[SamplePublisher]:
         """Publish the final counters; returns the publishers whose readers should
         acknowledge before the node goes (a clean exit loses nothing)."""
         self._report()

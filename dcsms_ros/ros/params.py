@@ -34,7 +34,6 @@ from rclpy.exceptions import (
 )
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.publisher import Publisher
 
 from dcsms_ros.core.config import SystemConfig, config_from_flat
 from dcsms_ros.core.schema import GLOBAL_SPECS, ParamSpec, expand_specs
@@ -42,6 +41,7 @@ from dcsms_ros.errors import ConfigError
 from dcsms_ros.graph import SCHEDULES
 from dcsms_ros.protocols.responder import Answerer
 from dcsms_ros.ros.connectivity import publishers_matched
+from dcsms_ros.ros.intraprocess import SamplePublisher
 
 #: Prefixes of run-time tunable names; everything else is fixed once a node runs.
 MUTABLE_PREFIXES = ("feedback.", "feedforward.", "control.", "supervisor.")
@@ -271,7 +271,7 @@ def declare_observed(node: Node) -> list[str]:
 
 
 def answerer(node: Node, publish: Callable[[T], None], lockstep: bool,
-             pubs: list[Publisher], observed: list[str]) -> Answerer[T]:
+             pubs: list[SamplePublisher], observed: list[str]) -> Answerer[T]:
     """The per-sample :class:`~dcsms_ros.protocols.responder.Answerer` of ``node``: in
     lockstep its first answer waits until ``pubs`` matched every reader this node sees (and
     ``observed`` topics an observer), so an observer misses nothing (the plant retransmits)."""

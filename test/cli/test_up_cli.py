@@ -16,26 +16,13 @@ UNSTABLE = Path(__file__).resolve().parents[1] / "fixtures" / "tem_unstable.yaml
     (["--rt-priority", "-1"], "--rt-priority -1"),
     (["--duration", "0"], "must be > 0"),
     (["--mode", "warp"], "unknown mode"),
-    (["--composed", "--recorder", "composed", "--record", "/nonexistent/bag"],
-     "--recorder composed loses samples of a lockstep run"),
 ])
 def test_bad_arguments_are_one_line_exit_2(extra: list[str], message: str,
                                            capsys: pytest.CaptureFixture[str]) -> None:
-    """Out-of-range priority, duration, an unknown mode, or the in-process recorder in
-    lockstep: one line on stderr, exit 2."""
+    """Out-of-range priority, duration, an unknown mode: one line on stderr, exit 2."""
     assert main(["up", "--lockstep", *extra]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("dcsms: error:") and message in err, err
-
-
-def test_composed_recorder_is_refused_by_sim_in_lockstep(tmp_path, capsys) -> None:
-    """`dcsms sim --engine graph` is lockstep: the in-process recorder is refused there too,
-    before anything is written."""
-    out = tmp_path / "bag"
-    assert main(["sim", "--engine", "graph", "--composed", "--recorder", "composed",
-                 "--duration", "0.1", "--out", str(out)]) == 2
-    assert "--recorder composed" in capsys.readouterr().err
-    assert not out.exists()
 
 
 @pytest.mark.parametrize("command", [["up", "--lockstep"],

@@ -63,13 +63,15 @@ def _modes(msgs: list[tuple[int, bytes]]) -> list[str]:
 
 
 def test_composed_schedule_equals_batch(domain: int, cfg: SystemConfig, tmp_path: Path) -> None:
-    """`sim --engine graph --composed --schedule` in namespace /t13 writes the same numbers,
-    stamps and mode sequence as `--engine batch`: every switch went through the set_mode
-    services and landed on its scheduled sample."""
+    """`sim --engine graph --composed --schedule` in namespace /t13, recorded by a recorder
+    process (a subscriber outside the composed process: every message goes to it over DDS),
+    writes the same numbers, stamps and mode sequence as `--engine batch`: every switch went
+    through the set_mode services and landed on its scheduled sample."""
     common = ["--mode", "passive", "--duration", "1.2", "--seed", "5",
               "--schedule", "0.3:dfbc_ffc,0.7:fbc"]
     graph, batch = tmp_path / "graph", tmp_path / "batch"
-    g = _sim([*common, "--engine", "graph", "--composed", "--namespace", "/t13",
+    g = _sim([*common, "--engine", "graph", "--composed", "--recorder", "process",
+              "--namespace", "/t13",
               "--out", str(graph)], tmp_path / "graph.log")
     _sim([*common, "--engine", "batch", "--out", str(batch)], tmp_path / "batch.log")
     got, ref = _read(graph), _read(batch)

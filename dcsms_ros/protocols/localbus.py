@@ -1,0 +1,328 @@
+"""In-process delivery: serialized messages handed from a publisher to the subscribers of the
+same process, without DDS (what rclcpp's intra-process communication does; rclpy has none).
+
+A composed graph (every node in one process, one driver thread) publishes each per-sample
+message through a :class:`BusWriter`; the driver calls :meth:`LocalBus.dispatch`, which hands
+the bytes to the endpoints of the topic in publication order:
+
+* **handlers** (:meth:`LocalBus.subscribe`): the control path, called at once (under the
+  endpoint's lock). A handler may publish: its messages queue behind the current ones, so a
+  lockstep cycle plant -> decoupling -> controllers -> plant runs without recursion. A
+  ``latest_only`` handler (a real-time reader, keep-last 1) skips a message when a newer one of
+  the topic is already queued, as its DDS reader's history would have replaced it.
+* **inboxes** (:meth:`LocalBus.inbox`): a queue its owner empties when it likes (the trip
+  checker's blocks, the real-time plant's held forces), each message with its publication time.
+* **observers** (:meth:`LocalBus.observe`): a recorder. They are served after the control
+  path has nothing left to do, or once :data:`OBSERVER_BATCH` messages wait, so they never
+  delay an answer by more than one batch and lose nothing (the queue is not bounded: a
+  lockstep run waits for its observers as it waited for a reliable reader).
+
+Every endpoint gets every message once; a topic's DDS publication is the caller's business:
+:meth:`LocalBus.remote` tells it (from the DDS writer's matched-reader count and the number of
+this process's own DDS readers, :meth:`LocalBus.add_reader`) whether a reader outside the
+process is matched. Publications from another thread than the dispatching one call ``wake``.
+No ROS here: unit-tested with plain callables (test/protocols/test_localbus.py).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+#: Observer deliveries that may wait behind the control path (messages).
+OBSERVER_BATCH = 64
+#: Messages one :meth:`LocalBus.dispatch` delivers at most, so the driver still sees its stop
+#: request and runs its ticks during an endless lockstep chain.
+DISPATCH_LIMIT = 2000
+
+
+@dataclass
+class Endpoint:
+    """One in-process subscriber of a topic.
+
+    Attributes
+    ----------
+    topic : str
+        Fully resolved topic name.
+    handler : callable or None
+        ``handler(data)`` (handlers) or ``handler(data, seq, t_ns)`` (observers); None for an
+        inbox.
+    lock : context manager or None
+        Held around each call of ``handler``.
+    latest_only : bool
+        Handlers: skip a message when a newer one of the topic is queued.
+    delivered : int
+        Messages handed to this endpoint.
+    skipped : int
+        Messages skipped for a newer one (``latest_only``).
+    """
+
+    topic: str
+    handler: Callable[..., None] | None = None
+    lock: Any = None
+    latest_only: bool = False
+    delivered: int = 0
+    skipped: int = 0
+
+
+@dataclass
+class Inbox(Endpoint):
+    """A queue of ``(data, t_ns)`` (``t_ns``: publication time, the bus clock's ns) that its
+    owner empties with :meth:`drain`."""
+
+    queue: deque[tuple[bytes, int]] = field(default_factory=deque)
+
+    def drain(self, handler: Callable[[bytes, int], None], limit: int = 100000) -> int:
+        """Call ``handler(data, t_ns)`` for the queued messages, oldest first (at most
+        ``limit``); returns how many."""
+        q = self.queue
+        n = 0
+        while q and n < limit:
+            data, t_ns = q.popleft()
+            handler(data, t_ns)
+            n += 1
+        return n
+
+
+@dataclass
+class _Topic:
+    """The endpoints of one topic (tuples, replaced whole: the dispatcher may be iterating)."""
+
+    name: str
+    handlers: tuple[Endpoint, ...] = ()
+    inboxes: tuple[Inbox, ...] = ()
+    observers: tuple[Endpoint, ...] = ()
+    writers: int = 0
+    readers: int = 0
+    published: int = 0
+    queued: int = 0
+
+
+class HeldHistory:
+    """The newest ``depth`` messages a keep-last writer did not publish on DDS (no reader
+    outside the process was matched), so that the first remote reader still gets the history
+    a transient-local writer promises: :meth:`release` them before the next DDS publication.
+    Messages that went to DDS are in the DDS writer's own history and are not held again.
+
+    Parameters
+    ----------
+    depth : int
+        The writer's history depth (messages).
+    """
+
+    def __init__(self, depth: int) -> None:
+        self._held: deque[bytes] = deque(maxlen=max(int(depth), 1))
+
+    def __len__(self) -> int:
+        return len(self._held)
+
+    def hold(self, data: bytes) -> None:
+        """Keep ``data`` (published in the process only); the oldest goes beyond ``depth``."""
+        self._held.append(data)
+
+    def release(self) -> list[bytes]:
+        """The held messages, oldest first, and forget them."""
+        out = list(self._held)
+        self._held.clear()
+        return out
+
+
+class BusWriter:
+    """The in-process side of one publisher: numbers its messages 1, 2, ... as a DDS writer
+    numbers its samples, and queues them on the bus."""
+
+    def __init__(self, bus: LocalBus, topic: _Topic,
+                 queue: deque[tuple[_Topic, bytes, int, int]]) -> None:
+        self.bus = bus
+        self.topic = topic
+        self.seq = 0
+        self._queue = queue
+
+    @property
+    def name(self) -> str:
+        """The topic's fully resolved name."""
+        return self.topic.name
+
+    def publish(self, data: bytes) -> None:
+        """Queue ``data`` (serialized) for every in-process endpoint of the topic."""
+        self.seq += 1
+        self.topic.published += 1
+        self.topic.queued += 1
+        bus = self.bus
+        self._queue.append((self.topic, data, self.seq, bus.clock()))
+        if bus.wake is not None and threading.get_ident() != bus.owner:
+            bus.wake()
+
+
+class LocalBus:
+    """Topic -> in-process endpoints; delivery in publication order; counts.
+
+    Parameters
+    ----------
+    clock : callable
+        ``clock()`` -> int ns stamped on each message at publication (default: the system
+        clock, the clock of DDS reception times).
+    wake : callable, optional
+        Called when a message is published from a thread other than :attr:`owner` (the
+        dispatcher's), so the dispatcher wakes up.
+    observer_batch : int
+        Observer deliveries that may wait behind the control path.
+    """
+
+    def __init__(self, clock: Callable[[], int] = time.time_ns,
+                 wake: Callable[[], None] | None = None,
+                 observer_batch: int = OBSERVER_BATCH) -> None:
+        self.clock = clock
+        self.wake = wake
+        self.observer_batch = observer_batch
+        #: Thread ident of the dispatcher (publications from it need no wake-up).
+        self.owner: int | None = None
+        self._topics: dict[str, _Topic] = {}
+        self._queue: deque[tuple[_Topic, bytes, int, int]] = deque()
+        self._observed: deque[tuple[Endpoint, bytes, int, int]] = deque()
+        self.closed = False
+
+    def _topic(self, name: str) -> _Topic:
+        t = self._topics.get(name)
+        if t is None:
+            t = self._topics[name] = _Topic(name)
+        return t
+
+    # -- endpoints ---------------------------------------------------------------------------
+    def advertise(self, topic: str) -> BusWriter:
+        """A writer of ``topic`` in this process."""
+        t = self._topic(topic)
+        t.writers += 1
+        return BusWriter(self, t, self._queue)
+
+    def has_publisher(self, topic: str) -> bool:
+        """True if a writer of ``topic`` lives in this process (its in-process readers get the
+        messages from the bus, not from DDS)."""
+        t = self._topics.get(topic)
+        return t is not None and t.writers > 0
+
+    def subscribe(self, topic: str, handler: Callable[[bytes], None], lock: Any = None,
+                  latest_only: bool = False) -> Endpoint:
+        """A control-path endpoint: ``handler(data)`` for each message (the newest only with
+        ``latest_only``), at once."""
+        ep = Endpoint(topic, handler, lock, latest_only)
+        t = self._topic(topic)
+        t.handlers = (*t.handlers, ep)
+        return ep
+
+    def inbox(self, topic: str) -> Inbox:
+        """A queued endpoint (see :class:`Inbox`)."""
+        ep = Inbox(topic)
+        t = self._topic(topic)
+        t.inboxes = (*t.inboxes, ep)
+        return ep
+
+    def observe(self, topic: str, handler: Callable[[bytes, int, int], None],
+                lock: Any = None) -> Endpoint:
+        """An observer: ``handler(data, seq, t_ns)`` after the control path (see the module
+        notes); may be added while messages flow (it gets those published from then on)."""
+        ep = Endpoint(topic, handler, lock)
+        t = self._topic(topic)
+        t.observers = (*t.observers, ep)
+        return ep
+
+    def add_reader(self, topic: str) -> None:
+        """Count one DDS reader of ``topic`` in this process (see :meth:`remote`)."""
+        self._topic(topic).readers += 1
+
+    def remote(self, topic: str, matched: int) -> bool:
+        """True if a writer of ``topic`` whose DDS writer matched ``matched`` readers has one
+        outside this process (more readers than this process's own)."""
+        t = self._topics.get(topic)
+        return matched > (t.readers if t is not None else 0)
+
+    def published(self, topic: str) -> int:
+        """Messages published on ``topic`` in this process."""
+        t = self._topics.get(topic)
+        return t.published if t is not None else 0
+
+    # -- delivery ----------------------------------------------------------------------------
+    @property
+    def backlog(self) -> int:
+        """Observer deliveries waiting behind the control path."""
+        return len(self._observed)
+
+    @property
+    def pending(self) -> bool:
+        """True while a message waits for delivery (control path or observers)."""
+        return bool(self._queue) or bool(self._observed)
+
+    def dispatch(self, limit: int = DISPATCH_LIMIT) -> int:
+        """Deliver the queued messages (and those their handlers publish) in publication order,
+        at most ``limit``; observers when the queue is empty or a batch waits. Returns the
+        number of messages taken off the queue. A handler's exception propagates (the rest
+        stays queued)."""
+        q, obs = self._queue, self._observed
+        n = 0
+        while q and n < limit and not self.closed:
+            topic, data, seq, t_ns = q.popleft()
+            topic.queued -= 1
+            n += 1
+            for ep in topic.handlers:
+                if ep.latest_only and topic.queued:
+                    ep.skipped += 1
+                    continue
+                ep.delivered += 1
+                assert ep.handler is not None
+                if ep.lock is None:
+                    ep.handler(data)
+                else:
+                    with ep.lock:
+                        ep.handler(data)
+            for box in topic.inboxes:
+                box.delivered += 1
+                box.queue.append((data, t_ns))
+            if topic.observers:
+                obs.extend((ep, data, seq, t_ns) for ep in topic.observers)
+                if len(obs) >= self.observer_batch:
+                    self.flush_observers()
+        if not q:
+            self.flush_observers()
+        return n
+
+    def flush_observers(self) -> int:
+        """Serve every waiting observer delivery; returns how many."""
+        obs = self._observed
+        n = 0
+        while obs:
+            ep, data, seq, t_ns = obs.popleft()
+            ep.delivered += 1
+            n += 1
+            assert ep.handler is not None
+            if ep.lock is None:
+                ep.handler(data, seq, t_ns)
+            else:
+                with ep.lock:
+                    ep.handler(data, seq, t_ns)
+        return n
+
+    def close(self) -> int:
+        """Stop calling handlers (their nodes are going) and hand what is still queued, and
+        whatever is published from now on when this is called again, to the inboxes and
+        observers only; returns the messages settled."""
+        self.closed = True
+        q = self._queue
+        n = 0
+        while q:
+            topic, data, seq, t_ns = q.popleft()
+            topic.queued -= 1
+            n += 1
+            for box in topic.inboxes:
+                box.delivered += 1
+                box.queue.append((data, t_ns))
+            self._observed.extend((ep, data, seq, t_ns) for ep in topic.observers)
+        self.flush_observers()
+        return n
+
+
+__all__ = ["DISPATCH_LIMIT", "OBSERVER_BATCH", "BusWriter", "Endpoint", "HeldHistory", "Inbox",
+           "LocalBus"]

@@ -1,0 +1,100 @@
+"""The rclpy side of in-process delivery (:mod:`dcsms_ros.protocols.localbus`).
+
+In a composed process (:class:`~.hotpath.DrivenContext`) a per-sample publisher is a
+:class:`BusPublisher`: each message goes to the in-process subscribers through the bus, and to
+DDS only when DDS has a reader to give it to:
+
+* **Duplicates.** An in-process subscriber of a topic with an in-process writer keeps its DDS
+  reader (``ros2 node info``, the graph checks and the first-sample gate see the same graph as
+  one process per node) but never reads it: the driver leaves it out of its wait set and the
+  node's inbox is the bus's, so each message arrives once. The DDS copies that reader gets
+  while a remote reader is matched are dropped by its keep-last history, unread.
+* **Remote readers.** The DDS writer's matched-reader count
+  (``get_subscription_count()``, one rmw call, ~1 us) minus this process's own readers of the
+  topic (counted as they are created) is the number of readers outside the process: rclcpp's
+  rule. It is asked at every publication, so every message published after a remote reader
+  (``ros2 topic echo``, a recorder process, a probe) matched reaches it, and none is published
+  on DDS while there is none.
+* **History.** A transient-local writer (the lockstep velocities and applied forces,
+  :func:`~.qos.stream_pub` ``durable=True``) holds the newest messages of its depth that went
+  to no DDS reader (:class:`~dcsms_ros.protocols.localbus.HeldHistory`) and publishes them
+  on DDS, oldest first, just before the first message a remote reader is matched for: a
+  late-joining recorder gets the same history as from one process per node. (Publishing them
+  on DDS all along cost ~20 us per message, 4 per lockstep sample: the DDS copies to this
+  process's own readers.) A volatile remote reader that joins then gets that history too.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rclpy.duration import Duration
+from rclpy.publisher import Publisher
+from rclpy.qos import DurabilityPolicy
+
+from dcsms_ros.protocols.localbus import BusWriter, HeldHistory, LocalBus
+
+
+class BusPublisher:
+    """A per-sample publisher of a composed process (see the module notes).
+
+    Parameters
+    ----------
+    pub : Publisher
+        The node's DDS publisher of the topic (created by the node as usual).
+    bus : LocalBus
+        The process's bus.
+    """
+
+    def __init__(self, pub: Publisher, bus: LocalBus) -> None:
+        self.pub = pub
+        self.bus = bus
+        self.writer: BusWriter = bus.advertise(pub.topic_name)
+        qos = pub.qos_profile
+        self.held = (HeldHistory(qos.depth) if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                     else None)
+        #: Messages also published on DDS.
+        self.on_dds = 0
+
+    @property
+    def topic_name(self) -> str:
+        """The fully resolved topic name."""
+        return str(self.pub.topic_name)
+
+    @property
+    def handle(self) -> Any:
+        """The DDS publisher's handle."""
+        return self.pub.handle
+
+    def remote(self) -> bool:
+        """True while a reader outside this process is matched."""
+        return self.bus.remote(self.writer.name, self.pub.get_subscription_count())
+
+    def publish(self, data: bytes) -> None:
+        """Hand ``data`` (serialized) to the in-process subscribers, and to DDS when a remote
+        reader is matched or the writer keeps a history."""
+        self.writer.publish(data)
+        if self.remote():
+            if self.held:  # the first remote reader: the history it would have had first
+                for old in self.held.release():
+                    self.pub.publish(old)
+                    self.on_dds += 1
+            self.pub.publish(data)
+            self.on_dds += 1
+        elif self.held is not None:
+            self.held.hold(data)
+
+    def get_subscription_count(self) -> int:
+        """The DDS writer's matched readers, this process's own included (as a plain
+        publisher's: the graph checks compare it with the graph's reader count)."""
+        return self.pub.get_subscription_count()
+
+    def wait_for_all_acked(self, timeout: Duration) -> bool:
+        """The DDS writer's wait for its reliable readers' acknowledgements."""
+        return bool(self.pub.wait_for_all_acked(timeout))
+
+
+#: What a node's per-sample publisher is: a :class:`BusPublisher` composed, else rclpy's own.
+SamplePublisher = Publisher | BusPublisher
+
+__all__ = ["BusPublisher", "SamplePublisher"]
