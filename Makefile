@@ -75,7 +75,7 @@ pytest: $(STAMP)
 # The main job end to end: lockstep graph + recording, the six modes, analysis, Table 4.
 # SCHED_FIFO for the control path where permitted (root / CAP_SYS_NICE): lockstep runs ~1.5-2x
 # faster and gives the same bits; elsewhere the nodes log a warning and run as usual.
-DEMO_ARGS ?= --composed --rt-priority 50
+DEMO_ARGS ?= --rt-priority 50
 demo: $(STAMP)
 	$(DCSMS) demo --out $(DEMO_OUT) $(DEMO_ARGS)
 

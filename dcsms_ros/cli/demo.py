@@ -72,7 +72,7 @@ def register(subparsers: Any) -> None:
                    help="graph: ROS nodes in lockstep (default); batch: core engine, no ROS")
     p.add_argument("--modes", default=",".join(m.label for m in ALL_MODES), metavar="LIST",
                    help="comma-separated modes, first is the reference's run order")
-    add_deploy_options(p)
+    add_deploy_options(p, composed=True)
     p.set_defaults(func=run)
 
 

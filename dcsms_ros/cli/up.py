@@ -33,14 +33,24 @@ from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import GraphSpec, define_graph
 
 
-def add_deploy_options(p: argparse.ArgumentParser) -> None:
-    """``--namespace``, ``--composed``, ``--recorder``, ``--rt-priority`` (up, sim, demo)."""
+def add_deploy_options(p: argparse.ArgumentParser, composed: bool = False) -> None:
+    """``--namespace``, ``--composed``, ``--recorder``, ``--rt-priority`` (up, sim, demo);
+    with ``composed`` (the demo, which is about results), composed is the default and
+    ``--per-process`` the option."""
     p.add_argument("--namespace", default=topics.NAMESPACE, metavar="NS",
                    help=f"namespace of every topic and service of the graph (default "
                    f"{topics.NAMESPACE}); two tables run side by side under two namespaces")
-    p.add_argument("--composed", action="store_true",
-                   help="every node in one process, one driver thread for the sample cycle "
-                   "(default: one process per node, as `ros2 run`)")
+    if composed:
+        p.add_argument("--composed", action="store_true",
+                       help="every node in one process (the default here)")
+        p.add_argument("--per-process", dest="composed", action="store_false",
+                       help="one process per node, as `ros2 run` (default: every node in one "
+                       "process, one driver thread, messages handed over in the process)")
+        p.set_defaults(composed=True)
+    else:
+        p.add_argument("--composed", action="store_true",
+                       help="every node in one process, one driver thread for the sample "
+                       "cycle (default: one process per node, as `ros2 run`)")
     p.add_argument("--recorder", choices=RECORDERS, default="composed",
                    help="with --composed and a recording: the recorder in the composed process "
                    "(default: it takes every message there, without DDS; lockstep ~3x faster, "
