@@ -35,8 +35,8 @@ BEST_MAX = 0.1
 DEFAULT_CONFIG = "config/tem_paper_fit.yaml"
 #: Seconds analysed per mode, the graph's and the batch engine's alike. The values' 95 %
 #: intervals narrow as 1/sqrt(T): at 24 s their median hi/lo was 2.1-3.0 over six held-back
-#: seeds, at 60 s 1.5 (docs/tem.md); the composed lockstep graph runs the 388 s this takes
-#: at about 1.6x real time.
+#: seeds, at 60 s (reference 120 s) 1.38-1.51 over ten (docs/tem.md); `make demo` simulates
+#: the 448 s this takes in about 190 s (composed lockstep, in-process recorder).
 SEGMENT_S = 60.0
 #: The Passive reference is analysed this many times longer than each mode: every value of an
 #: axis is divided by it, so its error is shared by all of them (a sharp peak, the fewest
