@@ -22,6 +22,7 @@ from typing import Any
 from dcsms_ros.analysis import modetable
 from dcsms_ros.analysis.paper import TABLE4, within
 from dcsms_ros.analysis.predict import Table4, predict_table4
+from dcsms_ros.cli import EXIT_INTERRUPTED
 from dcsms_ros.cli.common import add_config_options, find_share_file, load_cfg, print_model_check
 from dcsms_ros.cli.up import add_deploy_options, build_graph, check_deploy_options, launch
 from dcsms_ros.core.modes import ALL_MODES, Mode, parse_mode
@@ -43,8 +44,6 @@ SEGMENT_S = 60.0
 #: degrees of freedom of the table). With 1x, one of ten held-back seeds missed the model in
 #: all four Z cells together (docs/tem.md).
 REFERENCE_FACTOR = 2.0
-#: launch()'s status when a signal stopped the graph before the schedule ended.
-INTERRUPTED = 130
 #: Marker that lets a new demo replace the output of an earlier one (and nothing else).
 MARKER = ".dcsms-demo"
 
@@ -104,8 +103,10 @@ def run(args: argparse.Namespace) -> int:
     schedule = _schedule(modes, spans)
     if args.engine == "batch":
         _batch(cfg, modes, schedule, total, bag)
-    else:
-        _graph(args, cfg, modes, schedule, total, bag, out)
+    elif not _graph(args, cfg, modes, schedule, total, bag, out):
+        print(f"dcsms demo: interrupted before the schedule ended; {bag} holds what was "
+              "recorded, not analysed (`dcsms analyze` reads it)", file=sys.stderr)
+        return EXIT_INTERRUPTED
     print(f"dcsms demo: simulated and recorded in {time.monotonic() - t_wall:.0f} s; "
           f"analysing {bag}", flush=True)
     from dcsms_ros.analysis.report import analyze  # noqa: PLC0415 - deferred for --help
@@ -164,19 +165,17 @@ def _batch(cfg: Any, modes: list[Mode], schedule: list[tuple[float, Mode]], tota
 
 
 def _graph(args: argparse.Namespace, cfg: Any, modes: list[Mode],
-           schedule: list[tuple[float, Mode]], total: float, bag: Path, out: Path) -> None:
+           schedule: list[tuple[float, Mode]], total: float, bag: Path, out: Path) -> bool:
+    """Run the schedule through the graph; False when a signal stopped it before its end."""
     spec = build_graph(cfg, args, "lockstep", modes[0], total, schedule)
     recorded = spec.analysis_topics()
     spec = build_graph(cfg, args, "lockstep", modes[0], total, schedule,
                        observers=spec.lockstep_observed(recorded))
     status = launch(spec, args, schedule, bag, recorded, out / "logs", True, cfg.plant.rate_hz,
-                    interrupted_status=INTERRUPTED)
-    if status == INTERRUPTED:
-        print(f"dcsms demo: interrupted before the schedule ended; {bag} holds what was "
-              "recorded, not analysed (`dcsms analyze` reads it)", file=sys.stderr)
-        raise KeyboardInterrupt  # the CLI's exit status for an interrupted command (130)
-    if status != 0:
+                    interrupted_status=EXIT_INTERRUPTED)
+    if status not in (0, EXIT_INTERRUPTED):
         raise DcsmsError(f"the graph exited with status {status} (logs in {out / 'logs'})")
+    return status == 0
 
 
 def _verdict(summary: Any) -> bool:
