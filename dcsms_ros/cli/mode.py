@@ -40,6 +40,22 @@ def _keep(into: list[str], msg: Any) -> None:
     into.append(msg.data)
 
 
+#: A latched history has arrived once nothing new came for this long, s.
+QUIET_S = 0.2
+
+
+def _until_quiet(executor: Any, into: list[str]) -> None:
+    """Spin until ``into`` stops growing for :data:`QUIET_S`."""
+    from dcsms_ros.ros.context import spin_until  # noqa: PLC0415 - deferred: ROS
+
+    while spin_until(executor, partial(_grown, into, len(into)), timeout_s=QUIET_S):
+        pass
+
+
+def _grown(into: list[str], seen: int) -> bool:
+    return len(into) > seen
+
+
 def run(args: argparse.Namespace) -> int:
     """Handler: call the service(s) and print the answer."""
     mode = parse_mode(args.name) if args.name is not None else None  # ModeError -> exit 2
@@ -91,9 +107,13 @@ def run(args: argparse.Namespace) -> int:
                     print(f"dcsms: error: no mode on {topics.MODE} within {args.timeout:g} s; "
                           f"is `dcsms up` running?", file=sys.stderr)
                     return 1
+                # both topics keep a history (events QoS): it arrives as a burst, and the
+                # newest message is the answer, so read until the burst has ended
+                _until_quiet(executor, got)
                 print(got[-1])
                 # both are latched by the same node: the state follows the mode at once
                 if spin_until(executor, lambda: bool(state), timeout_s=min(args.timeout, 1.0)):
+                    _until_quiet(executor, state)
                     print(f"supervisor: {state[-1]}")
             return 0
         finally:
