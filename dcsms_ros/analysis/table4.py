@@ -65,7 +65,6 @@ def _ground_corrected(results: list[dict[str, Any]], ref: dict[str, Any], axis: 
                and r["arrays"][axis]["f"].shape == grid.shape for r in results):
         return
     arrs = [r["arrays"][axis] for r in results]
-    common = np.mean([x["psd_bodies"]["ground"] for x in arrs], axis=0)
     fs = [r["json"]["fs_hz"] for r in results]
     nper = [r["json"]["nperseg"] for r in results]
     k = results.index(ref)
@@ -73,7 +72,7 @@ def _ground_corrected(results: list[dict[str, Any]], ref: dict[str, Any], axis: 
                                         x["tfs"][-1].h) for r, x in zip(results, arrs,
                                                                         strict=True)],
                                       grid, f_r, k)
-    ratios = [groundnorm.variance_ratio(grid, x["top"], x["ground"], common, f_r, s, n)
+    ratios = [groundnorm.variance_ratio(grid, x["top"], x["ground"], f_r, s, n)
               for x, s, n in zip(arrs, fs, nper, strict=True)]
     for r, norm, ratio in zip(results, values, ratios, strict=True):
         db = modetable.normalize(norm, 1.0)[1]
