@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
+from dcsms_ros.analysis.predict import predict_table4
 from dcsms_ros.core import analytics as an
 from dcsms_ros.core.config import load_config
 from dcsms_ros.core.geometry import MAX_CONDITION, condition, drive_matrix, sensor_matrix
@@ -18,7 +19,10 @@ from dcsms_ros.core.modes import ALL_MODES
 from dcsms_ros.errors import ConfigError
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
-PRESETS = ["table1.yaml", "prototype.yaml", "tem_three_point.yaml"]
+PRESETS = ["table1.yaml", "prototype.yaml", "tem_three_point.yaml", "tem_paper_fit.yaml",
+           "tem_paper_fit_v2.yaml"]
+#: The presets fitted to the paper's Table 4; their headers quote the model's prediction.
+FITS = ["tem_paper_fit.yaml", "tem_paper_fit_v2.yaml"]
 
 
 @pytest.mark.parametrize("name", PRESETS)
@@ -29,7 +33,23 @@ def test_preset_loads_and_is_stable_in_every_mode(name):
     assert all(an.is_stable(cfg, m) for m in ALL_MODES)
 
 
-@pytest.mark.parametrize("name", ["prototype.yaml", "tem_three_point.yaml"])
+@pytest.mark.slow
+@pytest.mark.parametrize("name", FITS)
+def test_fit_header_quotes_the_model(name):
+    """A fit's header quotes ``model table4`` (FBC / FBC+FFC / DFBC / DFBC+FFC per axis) to its
+    three digits: the numbers a reader compares with the paper are the preset's own."""
+    text = (CONFIG / name).read_text()
+    pred = predict_table4(load_config(CONFIG / name)).values
+    for axis in "xyz":
+        m = re.search(rf"^#\s+{axis.upper()} ([0-9.]+) / ([0-9.]+) / ([0-9.]+) / ([0-9.]+)\s+paper",
+                      text, re.MULTILINE)
+        assert m is not None, f"{name}: no predicted {axis.upper()} row in the header"
+        model = [pred[r][axis] for r in ("FBC", "FBC+FFC", "DFBC", "DFBC+FFC")]
+        np.testing.assert_allclose([float(v) for v in m.groups()], model, atol=6e-4)
+
+
+@pytest.mark.parametrize("name", ["prototype.yaml", "tem_three_point.yaml",
+                                  "tem_paper_fit_v2.yaml"])
 def test_every_preset_value_has_a_unit_comment(name):
     """Every scalar or list value line of the new presets carries a comment (its unit)."""
     lines = (CONFIG / name).read_text().splitlines()
