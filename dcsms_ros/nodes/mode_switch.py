@@ -30,7 +30,6 @@ params file, including tuning changed on the controller nodes (learnt from
 
 from __future__ import annotations
 
-import threading
 import time
 from functools import partial
 from typing import Any
@@ -120,9 +119,11 @@ class ModeSwitchNode(Node):
         self.tripped, self.trip_reason = False, ""
         self.trip_at = (0, 0)
         self.last_result = "start"
-        self._switch_lock = threading.Lock()
+        #: The mode the controllers must follow after a trip or a supervisor's decision, and
+        #: what decided it (None: nothing to follow).
+        self._target: tuple[Mode, str] | None = None
+        self._following = False
         self.hot = HotPath(self)
-        self._lock = self.hot.lock  # trip state: hot loop, timer, reset service
         services = ReentrantCallbackGroup()
         self.pub_mode = self.create_publisher(String, topics.LOCAL.mode, qos.events())
         self.pub_config = self.create_publisher(String, topics.LOCAL.config, qos.latched())
@@ -149,7 +150,11 @@ class ModeSwitchNode(Node):
         self._cols = [2] if cfg.plant.dof == 1 else list(range(6))  # z, or the whole twist
         self._trip_subs: list[Any] = []
         self._asked = -1  # lockstep: the checkpoint stamp the plant waits for
+        self._judged = -1  # ... the newest checkpoint judged
         self._answered = -1
+        # lockstep: the hot loop hands a switch of the controllers to the executor (it waits
+        # for their replies there) and answers the plant once they confirmed
+        self._follow_gc = self.create_guard_condition(self._follow, services)
         self.pub_checked = None
         self._retry: Timer | None = None
         self._retry_until = 0.0
@@ -177,7 +182,7 @@ class ModeSwitchNode(Node):
                     self._retry.cancel()
                 self.hot.set_tick(self._check_tick)
         if self.trip_enabled and self.pub_checked is None:
-            steady_timer(self, 0.05, self._judge_locked, MutuallyExclusiveCallbackGroup())
+            steady_timer(self, 0.05, self._judge_timer, MutuallyExclusiveCallbackGroup())
         steady_timer(self, 0.5, self._reconcile, services)
         steady_timer(self, 1.0, self._report)
         self._publish_mode()
@@ -204,12 +209,11 @@ class ModeSwitchNode(Node):
     def _on_change(self, cfg: Any, changed: set[str]) -> None:
         self.guard.flat.update({k: self.params.flat[k] for k in changed})
         if any(n.startswith("control.trip_") for n in changed):
-            with self._lock:
-                self.feed = TripFeed(TripChecker(cfg.control, cfg.plant.rate_hz,
-                                                 cfg.plant.num_stages, cfg.plant.dof),
-                                     cfg.plant.rate_hz)
-                if self.sfeed is not None:
-                    self.sfeed = SupervisedFeed(self.feed, CheckpointFeed(cfg), self.sfeed.sup)
+            self.feed = TripFeed(TripChecker(cfg.control, cfg.plant.rate_hz,
+                                             cfg.plant.num_stages, cfg.plant.dof),
+                                 cfg.plant.rate_hz)
+            if self.sfeed is not None:
+                self.sfeed = SupervisedFeed(self.feed, CheckpointFeed(cfg), self.sfeed.sup)
         if self.sfeed is not None and any(n.startswith(("supervisor.", "control.trip_rms"))
                                           for n in changed):
             self.sfeed.sup.s = settings_from(cfg)  # applies from the next checkpoint
@@ -232,64 +236,62 @@ class ModeSwitchNode(Node):
             self._publish_config()
 
     # -- switching ---------------------------------------------------------------------------
-    def switch(self, target: Mode) -> tuple[bool, str]:
-        """Switch every controller to ``target`` atomically; returns (success, message)."""
-        if not self._switch_lock.acquire(blocking=False):
+    async def switch(self, target: Mode) -> tuple[bool, str]:
+        """Switch every controller to ``target`` atomically; returns (success, message).
+
+        A coroutine: it waits for the controllers' replies suspended, so the node's other
+        callbacks (the trip, reports) go on meanwhile; no other switch starts before it ends.
+        """
+        if self.ctl.busy:
             return False, "another mode switch is in progress"
-        try:
-            if self.sfeed is not None:
-                refused = self.sfeed.sup.refusal(target)
-                if refused:
-                    return False, refused
-            elif self.tripped and target is not Mode.PASSIVE:
-                return False, (f"tripped ({self.trip_reason}); call {topics.LOCAL.reset_trip} "
-                               f"before leaving Passive")
-            lacking = sorted(enabled_controllers(target, self.num_stages) - set(self.controllers))
-            if lacking:
-                return False, f"{target.label} needs {', '.join(lacking)}, not in this graph"
-            refused = self.guard.refuse_mode(target)
+        if self.sfeed is not None:
+            refused = self.sfeed.sup.refusal(target)
             if refused:
                 return False, refused
-            old = self.mode
-            want = enabled_controllers(target, self.num_stages)
-            had = enabled_controllers(old, self.num_stages)
-            involved = [c for c in self.controllers if c in want or c in had]
-            res = self.ctl.call_all({c: c in want for c in involved}, self.switch_timeout_s)
-            failed = [c for c in involved if not res[c][0]]
-            if failed:
-                # everyone who may have applied the request goes back (repeating a state is
-                # harmless); only a controller that never got it is left alone
-                back = self.ctl.call_all({c: c in had for c in involved
-                                          if not res[c][1].startswith("not available")},
-                                         self.switch_timeout_s)
-                stuck = [c for c, r in back.items() if not r[0]]
-                msg = (f"switch to {target.label} failed: "
-                       + "; ".join(f"{c}: {res[c][1]}" for c in failed)
-                       + f"; rolled back to {old.label}"
-                       + (f" (rollback failed for {', '.join(stuck)})" if stuck else ""))
-                self.get_logger().error(msg)
-                return False, msg
-            self._set_mode(target)
-            if self.sfeed is not None:
-                with self._lock:
-                    self._drain()
-                    k = self.sfeed.newest_sample()
-                    self.sfeed.sup.request(target, k, k / self.params.cfg.plant.rate_hz)
-                    self.tripped = False
-                self._publish_state(self.sfeed.sup.transitions[-1])
-            msg = f"mode {target.label}" + (": " + ", ".join(
-                f"{c} {'on' if c in want else 'off'}" for c in involved) if involved else "")
-            self.get_logger().info(msg)
-            return True, msg
-        finally:
-            self._switch_lock.release()
+        elif self.tripped and target is not Mode.PASSIVE:
+            return False, (f"tripped ({self.trip_reason}); call {topics.LOCAL.reset_trip} "
+                           f"before leaving Passive")
+        lacking = sorted(enabled_controllers(target, self.num_stages) - set(self.controllers))
+        if lacking:
+            return False, f"{target.label} needs {', '.join(lacking)}, not in this graph"
+        refused = self.guard.refuse_mode(target)
+        if refused:
+            return False, refused
+        old = self.mode
+        want = enabled_controllers(target, self.num_stages)
+        had = enabled_controllers(old, self.num_stages)
+        involved = [c for c in self.controllers if c in want or c in had]
+        res = await self.ctl.call_all({c: c in want for c in involved},
+                                      self.switch_timeout_s)
+        failed = [c for c in involved if not res[c][0]]
+        if failed:
+            # everyone who may have applied the request goes back (repeating a state is
+            # harmless); only a controller that never got it is left alone
+            back = await self.ctl.call_all({c: c in had for c in involved
+                                            if not res[c][1].startswith("not available")},
+                                           self.switch_timeout_s)
+            stuck = [c for c, r in back.items() if not r[0]]
+            msg = (f"switch to {target.label} failed: "
+                   + "; ".join(f"{c}: {res[c][1]}" for c in failed)
+                   + f"; rolled back to {old.label}"
+                   + (f" (rollback failed for {', '.join(stuck)})" if stuck else ""))
+            self.get_logger().error(msg)
+            return False, msg
+        self._set_mode(target)
+        if self.sfeed is not None:
+            self._drain()
+            k = self.sfeed.newest_sample()
+            self.sfeed.sup.request(target, k, k / self.params.cfg.plant.rate_hz)
+            self.tripped = False
+            self._publish_state(self.sfeed.sup.transitions[-1])
+        msg = f"mode {target.label}" + (": " + ", ".join(
+            f"{c} {'on' if c in want else 'off'}" for c in involved) if involved else "")
+        self.get_logger().info(msg)
+        return True, msg
 
-    def _on_set_mode_request(self, mode: Mode, request: Trigger.Request,
-                             response: Trigger.Response) -> Trigger.Response:
-        return self._on_set_mode(mode, response)
-
-    def _on_set_mode(self, mode: Mode, response: Trigger.Response) -> Trigger.Response:
-        response.success, response.message = self.switch(mode)
+    async def _on_set_mode_request(self, mode: Mode, request: Trigger.Request,
+                                   response: Trigger.Response) -> Trigger.Response:
+        response.success, response.message = await self.switch(mode)
         self.last_result = response.message
         return response
 
@@ -304,12 +306,12 @@ class ModeSwitchNode(Node):
         return c in enabled_controllers(self.mode, self.num_stages)
 
     def _reconcile(self) -> None:
-        if not self._switch_lock.locked():
+        if not self.ctl.busy:
             self.ctl.reconcile(self._want)
 
     def _on_boot(self, c: str, msg: Int64) -> None:
         # a switch in progress tells everyone anyway
-        self.ctl.on_boot(c, msg.data, self._want, quiet=self._switch_lock.locked())
+        self.ctl.on_boot(c, msg.data, self._want, quiet=self.ctl.busy)
 
     # -- trip --------------------------------------------------------------------------------
     def _drain(self) -> None:
@@ -336,18 +338,23 @@ class ModeSwitchNode(Node):
     def _feed_trip(self, i: int, buf: bytes) -> None:
         self.feed.add(i, *read_stamped(buf, TWIST_STAMPED, self.feed.checker.dof))
 
-    def _judge_locked(self, through_ns: int | None = None) -> None:
+    async def _judge_timer(self) -> None:
+        """Real time: judge what arrived; the controllers follow a decision before the next
+        judgement (this timer waits for them)."""
+        self._judge()
+        await self._follow()
+
+    def _judge(self, through_ns: int | None = None) -> None:
+        """Judge the streams through ``through_ns`` (None: what arrived); a trip or the
+        supervisor's decision sets the mode the controllers must follow (:meth:`_follow`)."""
+        self._drain()
         if self.sfeed is not None:
-            with self._lock:
-                self._drain()
-                transitions = self.sfeed.step(through_ns)
+            transitions = self.sfeed.step(through_ns)
             if transitions:
                 self._supervise(transitions)
             return
-        with self._lock:
-            self._drain()
-            # judged on after a trip too: the reported RMS shows when the table has settled
-            trip = self.feed.judge(through_ns)
+        # judged on after a trip too: the reported RMS shows when the table has settled
+        trip = self.feed.judge(through_ns)
         if trip is not None and not self.tripped:
             self._trip(trip.reason, self.feed.trip_ns)
 
@@ -369,16 +376,36 @@ class ModeSwitchNode(Node):
         if self.tripped:
             self.trip_at = (time.monotonic_ns(), sample_ns(last.sample, self.feed.rate))
         if last.mode is not self.mode:
-            with self._switch_lock:
-                want = enabled_controllers(last.mode, self.num_stages)
-                res = self.ctl.call_all({c: c in want for c in self.controllers},
-                                        self.switch_timeout_s, wait_for_service=False)
-                self._set_mode(last.mode)
-            bad = [c for c, r in res.items() if not r[0]]
-            if bad:
-                self.get_logger().error(f"supervisor: {last.mode.label}: could not switch "
-                                        f"{', '.join(bad)}")
+            self._target = (last.mode, f"supervisor: {last.mode.label}: could not switch")
+        else:
+            self._report()
+
+    async def _follow(self) -> None:
+        """Switch the controllers to the mode a trip or the supervisor decided (after a
+        switch in progress); then report and, in lockstep, answer the plant."""
+        # rclpy's multi-threaded executor may run one trigger of a guard condition more than
+        # once: a second run while the first waits has nothing to do
+        if self._target is None or self._following:
+            return
+        self._following = True
+        mode, why = self._target
+        want = enabled_controllers(mode, self.num_stages)
+        try:
+            res = await self.ctl.call_all({c: c in want for c in self.controllers},
+                                          self.switch_timeout_s, wait_for_service=False)
+        finally:
+            self._following = False
+        self._set_mode(mode)
+        self._target = None
+        bad = [c for c, r in res.items() if not r[0]]
+        if bad:
+            self.get_logger().error(f"{why} {', '.join(bad)}")
         self._report()
+        if self._asked >= 0:  # lockstep: the verdict waited for the controllers
+            if self.hot.on:
+                self.hot.wake()
+            else:
+                self._check_tick()
 
     def _publish_state(self, tr: Transition | None) -> None:
         """``supervisor/state``: the transition's label; at start ``ENGAGED`` (or ``OFF``
@@ -410,16 +437,23 @@ class ModeSwitchNode(Node):
             self._retry.cancel()
 
     def _check_tick(self) -> float | None:
-        """Judge the asked checkpoint once every stage's samples through it are in; else try
-        again shortly (their DDS delivery may trail the question)."""
+        """Judge the asked checkpoint once every stage's samples through it are in (else try
+        again shortly: their DDS delivery may trail the question); answer once the controllers
+        followed what it decided (:meth:`_follow`, on the executor, which wakes this loop)."""
         if self._asked < 0:
             return None
-        self._drain()
-        ready = (self.sfeed.complete(self._asked) if self.sfeed is not None
-                 else self.feed.complete_ns() >= self._asked)
-        if not ready:
-            return 0.0002
-        self._judge_locked(self._asked)
+        if self._judged < self._asked:
+            self._drain()
+            ready = (self.sfeed.complete(self._asked) if self.sfeed is not None
+                     else self.feed.complete_ns() >= self._asked)
+            if not ready:
+                return 0.0002
+            self._judge(self._asked)
+            self._judged = self._asked
+            if self._target is not None:
+                self._follow_gc.trigger()
+        if self._target is not None:
+            return None
         self._answer(self._asked)
         self._asked = -1
         return None
@@ -438,32 +472,24 @@ class ModeSwitchNode(Node):
         k = self.feed.index(stamp_ns)
         self.pub_state.publish(String(data=f"LATCHED Passive at {k / self.feed.rate:.4f} s: "
                                       f"{reason} (no supervisor)"))
-        with self._switch_lock:
-            res = self.ctl.call_all(dict.fromkeys(self.controllers, False),
-                                    self.switch_timeout_s, wait_for_service=False)
-            self._set_mode(Mode.PASSIVE)
-        bad = [c for c, r in res.items() if not r[0]]
-        if bad:
-            self.get_logger().error(f"trip: could not disable {', '.join(bad)}")
-        self._report()
+        self._target = (Mode.PASSIVE, "trip: could not disable")
 
     def _on_reset_trip(self, request: Trigger.Request,
                        response: Trigger.Response) -> Trigger.Response:
         if not self.tripped:
             response.success, response.message = True, "no trip latched"
             return response
-        with self._lock:
-            self._drain()  # what arrived before the reset belongs to the tripped past
-            if self.sfeed is not None:
-                k = self.sfeed.newest_sample()
-                self.sfeed.sup.reset(k, k / self.params.cfg.plant.rate_hz)
-                self._publish_state(self.sfeed.sup.transitions[-1])
-            else:
-                self.feed.reset()
-                k = self.feed.index(max(self.feed.judged_ns, 0))
-                self.pub_state.publish(String(
-                    data=f"OFF Passive at {k / self.feed.rate:.4f} s: reset_trip"))
-            old, self.tripped, self.trip_reason = self.trip_reason, False, ""
+        self._drain()  # what arrived before the reset belongs to the tripped past
+        if self.sfeed is not None:
+            k = self.sfeed.newest_sample()
+            self.sfeed.sup.reset(k, k / self.params.cfg.plant.rate_hz)
+            self._publish_state(self.sfeed.sup.transitions[-1])
+        else:
+            self.feed.reset()
+            k = self.feed.index(max(self.feed.judged_ns, 0))
+            self.pub_state.publish(String(
+                data=f"OFF Passive at {k / self.feed.rate:.4f} s: reset_trip"))
+        old, self.tripped, self.trip_reason = self.trip_reason, False, ""
         response.success = True
         response.message = f"trip cleared (was: {old}); mode stays {self.mode.label}"
         self.get_logger().info(response.message)
@@ -496,7 +522,7 @@ class ModeSwitchNode(Node):
         self.pub_diag.publish(arr)
 
 
-main = main_for(ModeSwitchNode, multithreaded=True)
+main = main_for(ModeSwitchNode)
 
 if __name__ == "__main__":
     main()

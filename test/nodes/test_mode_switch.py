@@ -20,6 +20,7 @@ from dcsms_ros.core.modes import Mode
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
 from dcsms_ros.nodes.mode_switch import ModeSwitchNode
 from dcsms_ros.ros import qos
+from dcsms_ros.ros.serialized import serialize
 
 
 class Graph:
@@ -37,6 +38,7 @@ class Graph:
                                         qos.latched())
         self.ex = MultiThreadedExecutor(num_threads=4, context=ctx)
         for n in (self.ms, *self.fb, self.client):
+            serialize(n)  # as the host does: callbacks one at a time with the hot loop
             self.ex.add_node(n)
         self.thread = __import__("threading").Thread(target=self.ex.spin, daemon=True)
         self.thread.start()
