@@ -149,14 +149,14 @@ def test_supervisor_parameters_change_at_run_time(ctx, cfg):
     supervisor (from its next checkpoint); an out-of-range one is rejected with the reason."""
     g = Graph(ctx, cfg)
     try:
-        assert g.ms.sfeed is not None and g.ms.sfeed.sup.s.recover_after_s == 5.0
+        assert g.ms.watch.sfeed is not None and g.ms.watch.sfeed.sup.s.recover_after_s == 5.0
         ok = g.ms.set_parameters([Parameter("supervisor.recover_after_s", value=9.0),
                                   Parameter("supervisor.ride_mode", value="passive")])
         assert all(r.successful for r in ok), ok
-        assert g.ms.sfeed.sup.s.recover_after_s == 9.0
-        assert g.ms.sfeed.sup.s.ride_mode is Mode.PASSIVE
+        assert g.ms.watch.sfeed.sup.s.recover_after_s == 9.0
+        assert g.ms.watch.sfeed.sup.s.ride_mode is Mode.PASSIVE
         bad = g.ms.set_parameters([Parameter("supervisor.hold_s", value=-1.0)])
         assert not bad[0].successful and "supervisor.hold_s" in bad[0].reason, bad
-        assert g.ms.sfeed.sup.s.hold_s == 2.0
+        assert g.ms.watch.sfeed.sup.s.hold_s == 2.0
     finally:
         g.close()
