@@ -193,7 +193,8 @@ class Recorder(Node):
         except (ImportError, AttributeError, ValueError, BagError) as exc:
             self._skip(topic, str(exc))
             return
-        st = TopicStats(topic, msgtype, _stamped(cls, msgtype), checked=len(offered) <= 1)
+        st = TopicStats(topic, msgtype, _stamped(cls, msgtype), checked=len(offered) <= 1,
+                        publishers=lambda: self.count_publishers(topic))
         self.stats[topic] = st
         qos = subscription_qos(offered, self.depth)
         holder: list[Any] = []

@@ -204,6 +204,27 @@ def test_sequence_gaps_and_restarts() -> None:
     assert (st.count, st.seq_gaps, st.restarts) == (13, 1, 1)
 
 
+def test_a_new_publisher_between_discoveries_is_not_a_restart() -> None:
+    """A second publisher that starts before the recorder's next discovery (every node writes
+    /diagnostics) interleaves its own numbers: asked at the first jump, the topic's publisher
+    count stops the checks instead of counting restarts and gaps; one publisher still has
+    its restarts counted."""
+    count = [1]
+    st = TopicStats("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", stamped=False,
+                    publishers=lambda: count[0])
+    for seq in (1, 2, 3):
+        st.add(seq, None, 0)
+    count[0] = 2  # a second node's writer, not known yet to the recorder's set_publishers
+    for seq in (1, 4, 2, 5, 3):
+        st.add(seq, None, 0)
+    assert (st.count, st.restarts, st.seq_gaps, st.checked) == (8, 0, 0, False)
+    count[0] = 1
+    alone = TopicStats("/t", cdr.TWIST_STAMPED, publishers=lambda: count[0])
+    for seq in (1, 2, 1, 5):
+        alone.add(seq, None, 0)
+    assert (alone.restarts, alone.seq_gaps, alone.seq_missing) == (1, 1, 3)
+
+
 def test_existing_out_is_one_line_error(tmp_path: Path,
                                         capsys: pytest.CaptureFixture[str]) -> None:
     """An existing OUT is refused before any ROS work: one line, exit 2."""
