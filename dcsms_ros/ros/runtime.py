@@ -118,21 +118,14 @@ def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
         report_hold(node, serial)
 
 
-#: A callback that held a node's hot-path lock longer than this (s) is named at exit.
-HOLD_REPORT_S = 1e-3
-
-
 def report_hold(node: Node, serial: Serialized | None) -> None:
-    """Log the longest time an executor callback held ``node``'s hot loop (info level from
-    :data:`HOLD_REPORT_S` on, else debug)."""
+    """Log, at exit, the longest time one of ``node``'s executor callbacks held its hot loop
+    (a sample waits as long: :mod:`.serialized`)."""
     if serial is None or not serial.calls:
         return
-    text = (f"longest executor callback under the hot-path lock: "
-            f"{serial.longest_s * 1e3:.3f} ms ({serial.longest}; {serial.calls} calls)")
-    if serial.longest_s >= HOLD_REPORT_S:
-        node.get_logger().info(text)
-    else:
-        node.get_logger().debug(text)
+    node.get_logger().info(f"longest executor callback under the hot-path lock: "
+                           f"{serial.longest_s * 1e3:.3f} ms ({serial.longest}; "
+                           f"{serial.calls} calls)")
 
 
 def quiesce(executor: Executor, node: Node, timeout_s: float = 2.0) -> None:
