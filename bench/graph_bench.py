@@ -7,17 +7,15 @@ both sides on the hot path (``dcsms_ros/ros/hotpath.py``), then the six-process 
 with the hot path on and off (``DCSMS_HOT_PATH=0``: every subscription on the default
 executor), then in real time at ``plant.rate_hz`` for ``--rt-seconds``.
 
-The plant writes the wall time of every sample and, per controller, the time from a sample's
-publication to the arrival of the force stamped with it (``timing_file``): lockstep rate,
-real-time period percentiles, deadline misses (period > 1.5 T) and sensor-to-force latency
-come from there; CPU share per node from ``/proc/<pid>/stat`` over the stepping phase.
+Each graph run and its timings come from ``graph_run.py``: lockstep rate, real-time period
+percentiles, deadline misses (period > 1.5 T) and sensor-to-force latency from the plant's
+timing file; CPU share per node from ``/proc/<pid>/stat`` over the stepping phase.
 ``python bench/graph_bench.py [--smoke] [--rt-seconds S]``.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import sys
@@ -32,133 +30,9 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-CONFIG = HERE.parent / "config" / "table1.yaml"
+from graph_run import CONFIG, env, lockstep_rate, p50_us, realtime_stats, run_graph
+
 Row = dict[str, Any]
-
-
-def _cpu_ticks(pid: int) -> int | None:
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return None
-    return int(fields[11]) + int(fields[12])  # utime + stime (fields 14, 15)
-
-
-@contextlib.contextmanager
-def _env(**kv: str):
-    old = {k: os.environ.get(k) for k in kv}
-    os.environ.update(kv)
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool = True,
-              timeout_s: float = 600.0, on_running: Any = None, rt_priority: int = 0,
-              composed: bool = False, record: str | None = None,
-              config: Path = CONFIG) -> dict[str, Any]:
-    """Start the graph (one process per node, or ``composed``), step ``seconds`` of simulated
-    time, return the timings. ``record``: ``process`` or ``composed`` runs the recorder (every
-    topic of the graph and /diagnostics, as ``dcsms up --record`` does) beside it.
-
-    ``on_running(kids)`` (e.g. a profiler attaching to ``kid.proc.pid``) is called once the
-    plant steps."""
-    from dcsms_ros.cli import deploy
-    from dcsms_ros.core.config import load_config
-    from dcsms_ros.core.modes import Mode
-    from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, define_graph
-
-    cfg = load_config(config)
-    run_dir = Path(tempfile.mkdtemp(prefix=f"graph-{schedule}-", dir=tmp))
-    timing = run_dir / "timing.npz"
-    spec = define_graph(cfg, schedule=schedule, mode=Mode.DFBC_FFC, duration_s=seconds)
-    recorded = [f"{spec.namespace}/*", "/diagnostics"]
-    if record and schedule == "lockstep":  # lockstep waits for the recorder, as `up` does
-        spec = define_graph(cfg, schedule=schedule, mode=Mode.DFBC_FFC, duration_s=seconds,
-                            observers=spec.lockstep_observed())
-    spec = spec.with_params("plant_simulator", timing_file=str(timing))
-    params, graph_file = deploy.write_files(spec, run_dir)
-    bag = run_dir / "bag"
-    rec: list[deploy.Child] = []
-    if record == "process":
-        rec = [deploy.Child("recorder", [*deploy.recorder_command(bag, recorded),
-                                         "--queue-depth", str(LOCKSTEP_WRITER_DEPTH)])]
-    if composed:
-        kids = [deploy.composed_child(graph_file, params, rt_priority,
-                                      [str(bag), *recorded] if record == "composed" else ())]
-    else:
-        kids = deploy.children(spec, params, rt_priority)
-    plant = kids[-1]
-    with _env(ROS_DOMAIN_ID=str(domain), DCSMS_HOT_PATH="1" if hot else "0"):
-        deploy.start(rec, run_dir, verbose=False)
-        deploy.start(kids, run_dir, verbose=False)
-    try:
-        assert plant.proc is not None and plant.log is not None
-        deadline = time.monotonic() + timeout_s
-        cpu0: dict[str, int | None] = {}
-        t_cpu0 = 0.0
-        while plant.proc.poll() is None and time.monotonic() < deadline:
-            if not cpu0 and "graph connected" in plant.log.read_text(errors="replace"):
-                t_cpu0 = time.monotonic()
-                cpu0 = {k.name: _cpu_ticks(k.proc.pid) for k in kids + rec
-                        if k.proc is not None}
-                if on_running is not None:
-                    on_running(kids)
-            time.sleep(0.02)
-        t_cpu1 = time.monotonic()
-        cpu1 = {k.name: _cpu_ticks(k.proc.pid) for k in kids + rec if k.proc is not None}
-        if plant.proc.poll() is None:
-            raise TimeoutError(f"{schedule} graph did not finish within {timeout_s:g} s")
-    finally:
-        deploy.stop(kids, deploy.RECORDER_STOP_TIMEOUTS if record == "composed" else
-                    deploy.STOP_TIMEOUTS)
-        deploy.stop(rec, deploy.RECORDER_STOP_TIMEOUTS)
-    if plant.proc.returncode != 0 or not timing.exists():
-        raise RuntimeError(f"plant exited {plant.proc.returncode}: "
-                           f"{plant.log.read_text()[-2000:] if plant.log else ''}")
-    z = np.load(timing)
-    hz = os.sysconf("SC_CLK_TCK")
-    span = max(t_cpu1 - t_cpu0, 1e-9)
-    cpu = {n: (cpu1[n] - cpu0[n]) / hz / span for n in cpu0
-           if cpu0.get(n) is not None and cpu1.get(n) is not None}
-    c0, c1 = z["cpu_s"]
-    t = z["t_pub_ns"].astype(np.float64) * 1e-9
-    # the plant's process CPU over its run (composed: every node, the in-process recorder)
-    cpu["composed" if composed else "plant_simulator"] = (
-        (c1 - c0) / max(t[-1] - t[0], 1e-9) if c1 > c0 else float("nan"))
-    lat = np.concatenate([z[k] for k in z.files if k.startswith("lat_ns_")]) * 1e-9
-    out = {"t": t, "rate_hz": float(z["rate_hz"]), "cpu": cpu, "latency_s": lat,
-           "overruns": int(z["overruns"]), "recorded": None,
-           "controllers": len([k for k in z.files if k.startswith("lat_ns_")])}
-    if record and bag.exists():
-        from rosbags.rosbag2 import Reader
-
-        with Reader(bag) as r:
-            out["recorded"] = {c.topic: c.msgcount for c in r.connections}
-    return out
-
-
-def lockstep_rate(r: dict[str, Any]) -> float:
-    """Steps per second from sample 10 on (sample 0 waits for the readers to match)."""
-    t = r["t"][10:]
-    return (t.size - 1) / (t[-1] - t[0])
-
-
-def realtime_stats(r: dict[str, Any]) -> dict[str, float]:
-    """Achieved rate, period percentiles (s), deadline-miss ratio, latency percentiles (s)."""
-    t, period = r["t"][10:], 1.0 / r["rate_hz"]
-    p = np.diff(t)
-    lat = r["latency_s"]
-    return {"rate_hz": (t.size - 1) / (t[-1] - t[0]), "p50": float(np.percentile(p, 50)),
-            "p99": float(np.percentile(p, 99)), "p999": float(np.percentile(p, 99.9)),
-            "max": float(p.max()), "miss": float(np.mean(p > 1.5 * period)),
-            "lat50": float(np.percentile(lat, 50)), "lat99": float(np.percentile(lat, 99)),
-            "samples": float(t.size)}
 
 
 def _pp(seconds: float, domain: int, executor: str, ping: str = "single") -> dict[str, Any]:
@@ -319,7 +193,7 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
                  "baseline_name": "6 processes, recording on", "baseline": rates["process"],
                  "target": 5000.0, "target_ratio": 5.0,
                  "note": f"{rates['composed+rec'] / 2000:.2f}x real time at 2 kHz; step p50 "
-                         f"{_p50_us(runs['composed+rec']):.0f} us; "
+                         f"{p50_us(runs['composed+rec']):.0f} us; "
                          f"{_recorded(runs['composed+rec'], n)}; CPU {cpu['composed+rec']}"
                          + ("" if rates["composed+rec"] >= 5000.0 else
                             "; below 5,000: one Python driver thread per step (recorder 27 %, "
@@ -328,7 +202,7 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
     rows.append({"name": "graph: lockstep DFBC+FFC, composed, recorder process",
                  "value": rates["composed"], "unit": "steps/s",
                  "baseline_name": "recorder in the process", "baseline": rates["composed+rec"],
-                 "note": f"step p50 {_p50_us(runs['composed']):.0f} us (every message also "
+                 "note": f"step p50 {p50_us(runs['composed']):.0f} us (every message also "
                          f"published on DDS for the recorder); {_recorded(runs['composed'], n)}; "
                          f"CPU {cpu['composed']}"})
     tem_s = 0.5 if smoke else 5.0
@@ -349,12 +223,6 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
     return rows
 
 
-def _p50_us(r: dict[str, Any]) -> float:
-    """Median step interval of a lockstep run (us): robust to the preemptions of a shared
-    machine, which the mean rate is not."""
-    return float(np.percentile(np.diff(r["t"]), 50) * 1e6)
-
-
 def _up_row(smoke: bool, tmp: Path, domain: int) -> Row:
     """`dcsms up --composed --lockstep --duration 30 --record OUT` (table1), wall time from the
     command to its exit: start-up, 30 s of samples, the bag closed."""
@@ -365,7 +233,7 @@ def _up_row(smoke: bool, tmp: Path, domain: int) -> Row:
     argv = [sys.executable, "-m", "dcsms_ros.cli", "up", "--composed", "--lockstep", "--mode",
             "DFBC+FFC", "--duration", str(seconds), "--record", str(out)]
     t0 = time.perf_counter()
-    with _env(ROS_DOMAIN_ID=str(domain)):
+    with env(ROS_DOMAIN_ID=str(domain)):
         proc = subprocess.run(argv, capture_output=True, text=True, timeout=900, check=False)
     wall = time.perf_counter() - t0
     tail = [ln for ln in proc.stdout.splitlines() if "summary" in ln]

@@ -15,6 +15,7 @@ chunk reader) decompresses them transparently, and the graph's streams shrink ab
 from __future__ import annotations
 
 import shutil
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -56,6 +57,9 @@ class BagWriter:
         ``<path>.partial``: where the bag is written until it is closed.
     counts : dict of str to int
         Messages written per topic.
+
+    Thread-safe: a composed recorder writes from the executor (topics from other processes)
+    and from the driver thread (in-process delivery); each call holds the writer's own lock.
     """
 
     def __init__(self, path: str | Path, storage: str = "mcap", compress: bool = True) -> None:
@@ -68,6 +72,7 @@ class BagWriter:
         self.counts: dict[str, int] = {}
         self._conns: dict[str, Any] = {}
         self._closed = False
+        self._lock = threading.Lock()
         # rosbags names the storage file after its directory, so the bag directory inside the
         # staging area (staging.claim) already carries the final name: no rewrite on the rename.
         try:
@@ -92,25 +97,29 @@ class BagWriter:
         qos_yaml : str, optional
             Offered QoS profiles as rosbag2 metadata YAML (a list), e.g. :data:`LATCHED_QOS`.
         """
-        if topic in self._conns:
-            raise BagError(f"{self.path}: topic {topic} added twice")
         if "/msg/" not in msgtype and msgtype.count("/") == 1:
             msgtype = msgtype.replace("/", "/msg/")
         qos: list[Qos] = parse_qos(qos_yaml) if qos_yaml else []
-        try:
-            self._conns[topic] = self._writer.add_connection(
-                topic, msgtype, typestore=typestore(), offered_qos_profiles=qos)
-        except (KeyError, WriterError, ReaderError, TypesysError) as exc:
-            raise BagError(f"{self.path}: cannot add {topic} ({msgtype}): {exc}") from None
-        self.counts[topic] = 0
+        with self._lock:
+            if topic in self._conns:
+                raise BagError(f"{self.path}: topic {topic} added twice")
+            try:
+                self._conns[topic] = self._writer.add_connection(
+                    topic, msgtype, typestore=typestore(), offered_qos_profiles=qos)
+            except (KeyError, WriterError, ReaderError, TypesysError) as exc:
+                raise BagError(f"{self.path}: cannot add {topic} ({msgtype}): {exc}") from None
+            self.counts[topic] = 0
 
     def write(self, topic: str, t_ns: int, cdr: bytes | memoryview) -> None:
         """Write one serialised message (CDR with encapsulation header) at log time ``t_ns``."""
         conn = self._conns.get(topic)
         if conn is None:
             raise BagError(f"{self.path}: topic {topic} was not added")
-        self._writer.write(conn, int(t_ns), cdr)
-        self.counts[topic] += 1
+        with self._lock:
+            if self._closed:
+                raise BagError(f"{self.path}: written after close")
+            self._writer.write(conn, int(t_ns), cdr)
+            self.counts[topic] += 1
 
     def write_many(self, topic: str, t_ns: Any, buffers: list[bytes]) -> None:
         """Write K messages of one topic; ``t_ns`` is an int array (K,) of log times in ns."""
@@ -118,30 +127,35 @@ class BagWriter:
         if conn is None:
             raise BagError(f"{self.path}: topic {topic} was not added")
         write = self._writer.write
-        for t, b in zip(t_ns.tolist() if hasattr(t_ns, "tolist") else t_ns, buffers,
-                        strict=True):
-            write(conn, t, b)
-        self.counts[topic] += len(buffers)
+        with self._lock:
+            if self._closed:
+                raise BagError(f"{self.path}: written after close")
+            for t, b in zip(t_ns.tolist() if hasattr(t_ns, "tolist") else t_ns, buffers,
+                            strict=True):
+                write(conn, t, b)
+            self.counts[topic] += len(buffers)
 
     def close(self) -> Path:
         """Finish the bag (index, metadata.yaml) and move it to :attr:`path`; returns it."""
-        if self._closed:
-            return self.path
-        self._closed = True
-        try:
-            self._writer.close()
-        except Exception as exc:  # noqa: BLE001 - any storage failure: the bag is unusable
-            self._abort_storage()
-            shutil.rmtree(self.staging, ignore_errors=True)
-            raise BagError(f"{self.path}: cannot finish bag: {exc}") from None
+        with self._lock:  # a write in another thread ends first; later ones are refused
+            if self._closed:
+                return self.path
+            self._closed = True
+            try:
+                self._writer.close()
+            except Exception as exc:  # noqa: BLE001 - any storage failure: the bag is unusable
+                self._abort_storage()
+                shutil.rmtree(self.staging, ignore_errors=True)
+                raise BagError(f"{self.path}: cannot finish bag: {exc}") from None
         return staging.publish(self.path, self.staging, self._inner)
 
     def abort(self) -> None:
         """Give up: close what can be closed and remove the staging directory."""
-        if self._closed:
-            return
-        self._closed = True
-        self._abort_storage()
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._abort_storage()
         shutil.rmtree(self.staging, ignore_errors=True)
 
     def _abort_storage(self) -> None:

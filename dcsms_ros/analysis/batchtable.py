@@ -13,8 +13,8 @@ from dcsms_ros.analysis import estimators as est
 from dcsms_ros.analysis import modetable
 from dcsms_ros.analysis.predict import TRANSLATIONS
 from dcsms_ros.analysis.segments import SETTLE_S
-from dcsms_ros.core.engine import SimResult
 from dcsms_ros.core.modes import Mode
+from dcsms_ros.core.simresult import SimResult
 
 
 def table4_of_runs(runs: Mapping[Mode, SimResult], axes: Sequence[str],

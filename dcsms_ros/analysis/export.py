@@ -42,8 +42,8 @@ from dcsms_ros import cdr
 from dcsms_ros.analysis.bagio import LATCHED_QOS, BagWriter, open_bag
 from dcsms_ros.analysis.reader import CONFIG_TOPIC, config_to_yaml
 from dcsms_ros.core import topics
-from dcsms_ros.core.engine import SimResult
 from dcsms_ros.core.modes import ControllerId
+from dcsms_ros.core.simresult import SimResult
 from dcsms_ros.errors import BagError
 
 #: Samples per topic encoded at once (~100 B each: a few MB per topic and block).

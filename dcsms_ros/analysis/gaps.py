@@ -25,7 +25,7 @@ are switched off (``checked = False``) and only the count is reported.
 from __future__ import annotations
 
 import statistics
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 #: An interval longer than this many median periods is a time gap.
@@ -59,6 +59,11 @@ class TopicStats:
         ``(stamp before, stamp after)`` in ns of the first time gaps.
     first_recv_ns, last_recv_ns : int
         Receive times (system clock, ns) of the first and last message.
+    publishers : callable or None
+        ``publishers()``: the topic's publisher count now, asked when the sequence numbers jump
+        while the topic is checked: a publisher that appeared since the count was last set
+        interleaves its own numbers (e.g. /diagnostics, written by every node), which is not a
+        restart nor a gap; the checks stop as :meth:`set_publishers` would.
     """
 
     topic: str
@@ -75,6 +80,7 @@ class TopicStats:
     examples: list[tuple[int, int]] = field(default_factory=list)
     first_recv_ns: int = 0
     last_recv_ns: int = 0
+    publishers: Callable[[], int] | None = None
     _last_seq: int | None = None
     _last_stamp: int | None = None
     _warm: list[tuple[int, int]] = field(default_factory=list)
@@ -92,6 +98,9 @@ class TopicStats:
             last = self._last_seq
             if last is not None:
                 step = seq - last
+                if step != 1 and self.publishers is not None and self.publishers() > 1:
+                    self.checked = False  # another publisher's numbers, not a jump
+                    return
                 if step > 1:
                     self.seq_gaps += 1
                     self.seq_missing += step - 1

@@ -14,10 +14,17 @@ its own process, or inside the composed process (``recorder="composed"``, the de
 the messages from the process's bus, every one, without DDS). Stop: every process
 gets SIGINT, then SIGTERM and SIGKILL after a timeout; the graph first, so the recorder receives
 everything it published. Node logs go to files in ``log_dir`` unless ``verbose``.
+
+Every child runs in a session of its own (the terminal's Ctrl-C reaches only the parent, which
+stops them in order), so nothing the terminal does reaches it; if the parent dies without
+stopping them (SIGKILL, or a caller such as ``make bench`` interrupted, whose ``subprocess.run``
+kills it), the kernel sends each child SIGTERM (Linux ``PR_SET_PDEATHSIG``), its ordinary clean
+stop: no process is left behind, and a recorder still closes its bag.
 """
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import signal
@@ -111,17 +118,41 @@ def child_env() -> dict[str, str]:
     return env
 
 
+#: ``prctl`` option: the signal a process gets when its parent dies (linux/prctl.h).
+PR_SET_PDEATHSIG = 1
+
+
+def _dies_with(parent: int) -> Callable[[], None] | None:
+    """A ``preexec_fn`` that makes the child get SIGTERM when process ``parent`` (the caller
+    of :func:`start`, from its calling thread) dies; None where ``prctl`` does not exist."""
+    if not sys.platform.startswith("linux"):
+        return None
+    prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before the fork
+
+    def arm() -> None:
+        prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
+        if os.getppid() != parent:  # it died before the line above
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    return arm
+
+
 def start(kids: Sequence[Child], log_dir: Path, verbose: bool) -> None:
-    """Start every child in its own session (the terminal's Ctrl-C reaches only ``up``)."""
+    """Start every child in its own session (the terminal's Ctrl-C reaches only ``up``); each
+    gets SIGTERM if this process dies without stopping it (see the module notes)."""
     env = child_env()
+    arm = _dies_with(os.getpid())
     for kid in kids:
         out: Any = None
         if not verbose:
             kid.log = log_dir / f"{kid.name}.log"
             out = kid.log.open("wb")
+        # the preexec only makes one system call (prctl), safe in a forked child of a process
+        # with threads; the graph is started before `up` creates its rclpy context anyway
         kid.proc = subprocess.Popen(kid.argv, stdout=out, stderr=subprocess.STDOUT if out else
                                     None, stdin=subprocess.DEVNULL, env={**env, **kid.env},
-                                    start_new_session=True)
+                                    start_new_session=True,
+                                    preexec_fn=arm)  # noqa: PLW1509
         if out is not None:
             out.close()
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -22,62 +21,14 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.core.modes import ControllerId, Mode, controller_ids, enabled_controllers
+from dcsms_ros.core.simresult import SimResult
 from dcsms_ros.core.simulator import PlantSimulator, check_plant
 from dcsms_ros.core.supervision import make_supervisor
-from dcsms_ros.core.supervisor import State, Supervisor, Transition
+from dcsms_ros.core.supervisor import State, Supervisor
 from dcsms_ros.core.trip import Trip, TripChecker
 from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
-
-
-@dataclass
-class SimResult:
-    """Time series of one batch run; K samples at ``cfg.plant.rate_hz``.
-
-    Attributes
-    ----------
-    t : ndarray, shape (K,)
-        Sample times, s.
-    truth : ndarray, shape (K, N+1, dof)
-        True twists of ground and stages (m/s, rad/s).
-    raw : ndarray, shape (K, n_channels)
-        Geophone readings, m/s.
-    velocity : ndarray, shape (K, N+1, dof)
-        Decoupled twists of ground and stages (what the controllers see).
-    wrench : dict of controller id to ndarray, shape (K, dof)
-        Each controller's command (N, N*m).
-    applied : ndarray, shape (K, n_actuators)
-        Forces actually applied by the actuators, N.
-    mode : list of (sample index, label)
-        Mode changes: the first entry is the starting mode; an instability trip adds
-        ``Passive`` at the first sample with the controllers off.
-    trip : Trip or None
-        The instability trip of this run (:mod:`.trip`), if one happened.
-    refused : list of (sample index, label)
-        Scheduled switches refused because a trip was latched (as the mode-switch node does).
-    excitation : ndarray, shape (K, N, dof), or None
-        The excitation wrench added to each stage's controller wrenches (N, N*m), zero from a
-        trip on; None when the run had none.
-    supervision : list of Transition
-        The supervisor's transitions in this block (empty without a supervisor).
-    """
-
-    cfg: SystemConfig
-    t: Array
-    truth: Array
-    raw: Array
-    velocity: Array
-    wrench: dict[str, Array]
-    applied: Array
-    mode: list[tuple[int, str]]
-    channel_names: list[str] = field(default_factory=list)
-    actuator_names: list[str] = field(default_factory=list)
-    counters: dict[str, int] = field(default_factory=dict)
-    trip: Trip | None = None
-    refused: list[tuple[int, str]] = field(default_factory=list)
-    excitation: Array | None = None
-    supervision: list[Transition] = field(default_factory=list)
 
 
 def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None = None,

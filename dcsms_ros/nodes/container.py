@@ -14,7 +14,8 @@ handed over in the process (the context's bus, :mod:`dcsms_ros.ros.intraprocess`
 published on DDS too while a subscriber in another process (a recorder, ``ros2 topic echo``)
 is matched, so it sees every message. In real time the plant's pacer runs the same cycle at
 its deadlines. Services, parameters, timers, ``/clock`` and the mode switch stay on a
-multi-threaded executor.
+multi-threaded executor; each node's callbacks there run under its hot-path lock
+(:mod:`dcsms_ros.ros.serialized`), one at a time with its handlers on the driver thread.
 
 ``--rt-priority N`` puts the driver thread (only it) under SCHED_FIFO. ``--record OUT
 [TOPIC ...]`` runs the recorder node in this process too (``dcsms up --recorder composed``):
@@ -43,7 +44,8 @@ from dcsms_ros.nodes.plant_simulator import PlantSimulatorNode
 from dcsms_ros.nodes.recorder import Recorder
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
 from dcsms_ros.ros.hotpath import DrivenContext
-from dcsms_ros.ros.runtime import close_nodes, config_error, quiesce
+from dcsms_ros.ros.runtime import close_nodes, config_error, quiesce, report_hold
+from dcsms_ros.ros.serialized import Serialized, serialize
 
 #: Executor threads: services and parameters of six nodes, the mode switch's calls.
 EXECUTOR_THREADS = 3
@@ -76,6 +78,7 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
     with ros_context(["--ros-args", "--params-file", str(params_file)], signals=True,
                      context=ctx) as ros:
         nodes: list[Node] = []
+        serials: list[Serialized | None] = []
         recorder: Any = None
         executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS, context=ctx)
         try:
@@ -85,6 +88,7 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
                                     "lockstep" else None)
                 executor.add_node(recorder)
             nodes = create_nodes(spec, ctx)
+            serials = [serialize(nd) for nd in nodes]  # before any callback can run
             for nd in nodes:
                 executor.add_node(nd)
             if recorder is not None:  # the in-process topics from their first message on
@@ -106,6 +110,8 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
             pass
         finally:
             loop.stop()
+            for nd, serial in zip(nodes, serials, strict=False):
+                report_hold(nd, serial)
             since = time.time_ns()
             for nd in reversed(nodes):
                 quiesce(executor, nd, timeout_s=1.0)

@@ -57,7 +57,6 @@ class ExcitationNode(Node, Stoppable):
         kwargs.setdefault("namespace", topics.NAMESPACE)
         super().__init__(node_name, **kwargs)
         self.hot = HotPath(self)
-        self._lock = self.hot.lock
         self.params = NodeConfig(self, lambda n: n == "disturbance.seed")
         cfg = self.params.cfg
         self.lockstep = declare_schedule(self) == "lockstep"
@@ -131,30 +130,28 @@ class ExcitationNode(Node, Stoppable):
 
     def _on_enable(self, request: SetBool.Request,
                    response: SetBool.Response) -> SetBool.Response:
-        with self._lock:
-            if request.data and self.tripped:
-                response.success = False
-                response.message = ("tripped: the excitation stays off until "
-                                    f"{self.names.reset_trip}")
-            elif request.data:
-                if not self.active:
-                    self._start_pending = True  # from the next sample on
-                response.success, response.message = True, "excitation started"
-            else:
-                self._stop()
-                response.success, response.message = True, "excitation stopped"
+        if request.data and self.tripped:
+            response.success = False
+            response.message = ("tripped: the excitation stays off until "
+                                f"{self.names.reset_trip}")
+        elif request.data:
+            if not self.active:
+                self._start_pending = True  # from the next sample on
+            response.success, response.message = True, "excitation started"
+        else:
+            self._stop()
+            response.success, response.message = True, "excitation stopped"
         self.get_logger().info(response.message)
         self._report()
         return response
 
     def _on_state(self, msg: String) -> None:
         tripped = msg.data.split(" ", 1)[0] in TRIPPED_STATES
-        with self._lock:
-            if tripped and not self.tripped and self.active:
-                self.get_logger().warning(f"instability trip: excitation stopped ({msg.data})")
-            if tripped:
-                self._stop()
-            self.tripped = tripped
+        if tripped and not self.tripped and self.active:
+            self.get_logger().warning(f"instability trip: excitation stopped ({msg.data})")
+        if tripped:
+            self._stop()
+        self.tripped = tripped
 
     def _report(self) -> None:
         level = DiagnosticStatus.WARN if self.tripped else DiagnosticStatus.OK

@@ -9,14 +9,11 @@ mode the model of the running configuration calls unstable is refused with the p
 (:mod:`dcsms_ros.ros.stability`; ``allow_unstable`` lets it through). The mode label is on ``mode``
 (transient local, depth 1).
 
-Supervisor (``supervisor.enabled``, the default; :mod:`dcsms_ros.core.supervisor`, fed by
-:class:`~dcsms_ros.protocols.superfeed.SupervisedFeed` from the stage and ground velocities
-and the applied forces): at every checkpoint it may ride through in a calmer mode, re-engage
-the user's mode, trip to Passive or latch; each transition switches the controllers, is logged
-and published on ``supervisor/state`` (transient local); a user's switch it refuses is refused
-with its reason. Without it (trip only, :class:`~dcsms_ros.core.trip.TripChecker` fed by
-:class:`~dcsms_ros.protocols.tripfeed.TripFeed`): the stage velocities are judged at every
-checkpoint; a trip disables every controller, latches Passive, logs why and reports it on
+Supervisor and trip (what is judged: :mod:`.mode_switch_supervisor`): at every checkpoint the
+supervisor may ride through in a calmer mode, re-engage the user's mode, trip to Passive or
+latch; each transition switches the controllers, is logged and published on
+``supervisor/state`` (transient local); a user's switch it refuses is refused with its reason.
+Without it a trip disables every controller, latches Passive, logs why and reports it on
 ``/diagnostics``; only ``reset_trip`` clears the latch (the mode stays Passive). Lockstep: the
 plant asks about each checkpoint (``trip/check``) once every controller answered its last
 sample, and waits for the verdict (``trip/checked``, sent after the controllers confirmed a
@@ -30,43 +27,27 @@ params file, including tuning changed on the controller nodes (learnt from
 
 from __future__ import annotations
 
-import threading
 import time
 from functools import partial
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import TwistStamped
 from rcl_interfaces.msg import ParameterEvent
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import qos_profile_parameter_events
-from rclpy.timer import Timer
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Header, Int64, String
+from std_msgs.msg import Int64, String
 from std_srvs.srv import Trigger
 
-from dcsms_ros.cdr import (
-    JOINT_STATE,
-    TWIST_STAMPED,
-    Batch,
-    BatchReader,
-    header_bytes,
-    read_header,
-    read_stamped,
-)
 from dcsms_ros.core import topics
-from dcsms_ros.core.checkpoints import CheckpointFeed
 from dcsms_ros.core.config import params_text
 from dcsms_ros.core.modes import ALL_MODES, Mode, controller_ids, enabled_controllers, parse_mode
-from dcsms_ros.core.supervision import LazyGains, make_supervisor, settings_from
 from dcsms_ros.core.supervisor import State, Transition
-from dcsms_ros.core.trip import TripChecker
 from dcsms_ros.errors import ConfigError, ModeError
+from dcsms_ros.nodes.mode_switch_checkpoints import CheckpointAnswers
 from dcsms_ros.nodes.mode_switch_clients import ControllerClients
-from dcsms_ros.protocols.superfeed import SupervisedFeed
-from dcsms_ros.protocols.tripfeed import TripFeed
+from dcsms_ros.nodes.mode_switch_supervisor import TableWatch
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.hotpath import HotPath
@@ -80,9 +61,6 @@ from dcsms_ros.ros.params import (
 )
 from dcsms_ros.ros.runtime import main_for
 from dcsms_ros.ros.stability import StabilityGuard
-
-#: Reader depth of the trip monitor's velocity streams (samples).
-TRIP_DEPTH = 4000
 
 
 class ModeSwitchNode(Node):
@@ -120,9 +98,11 @@ class ModeSwitchNode(Node):
         self.tripped, self.trip_reason = False, ""
         self.trip_at = (0, 0)
         self.last_result = "start"
-        self._switch_lock = threading.Lock()
+        #: The mode the controllers must follow after a trip or a supervisor's decision, and
+        #: what decided it (None: nothing to follow).
+        self._target: tuple[Mode, str] | None = None
+        self._following = False
         self.hot = HotPath(self)
-        self._lock = self.hot.lock  # trip state: hot loop, timer, reset service
         services = ReentrantCallbackGroup()
         self.pub_mode = self.create_publisher(String, topics.LOCAL.mode, qos.events())
         self.pub_config = self.create_publisher(String, topics.LOCAL.config, qos.latched())
@@ -139,52 +119,27 @@ class ModeSwitchNode(Node):
                                 callback_group=services)
         self.create_service(Trigger, topics.LOCAL.reset_trip, self._on_reset_trip,
                             callback_group=services)
-        self.feed = TripFeed(TripChecker(cfg.control, cfg.plant.rate_hz, n, cfg.plant.dof),
-                             cfg.plant.rate_hz)
         self.pub_state = self.create_publisher(String, topics.LOCAL.supervisor_state,
                                                qos.events())
-        self.sfeed = self._supervised(cfg) if self.trip_enabled else None
-        self._forces = BatchReader(JOINT_STATE)
-        self._twists = [BatchReader(TWIST_STAMPED) for _ in range(n + 1)]  # stages, ground
-        self._cols = [2] if cfg.plant.dof == 1 else list(range(6))  # z, or the whole twist
-        self._trip_subs: list[Any] = []
-        self._asked = -1  # lockstep: the checkpoint stamp the plant waits for
-        self._answered = -1
-        self.pub_checked = None
-        self._retry: Timer | None = None
-        self._retry_until = 0.0
-        if self.trip_enabled:
-            # reliable and (lockstep) transient local: every sample from 0, in order; no
-            # executor wakes per sample: the queues are drained in blocks
-            tq = qos.stream_pub(self.lockstep, durable=True)
-            tq.depth = TRIP_DEPTH
-            self._trip_subs = [self.hot.detached(TwistStamped, topics.LOCAL.velocity(
-                f"stage{i + 1}"), tq, raw=True) for i in range(n)]
-            if self.sfeed is not None:
-                self._ground_sub = self.hot.detached(TwistStamped, topics.LOCAL.velocity(
-                    "ground"), tq, raw=True)
-                fq = qos.stream_pub(self.lockstep, durable=True)
-                fq.depth = TRIP_DEPTH
-                self._force_sub = self.hot.detached(JointState, topics.LOCAL.actuators_applied,
-                                                     fq, raw=True)
-            if self.lockstep:
-                self.pub_checked = self.hot.publisher(Header, topics.LOCAL.trip_checked,
-                                                      qos.stream_pub(True))
-                self.hot.subscribe(Header, topics.LOCAL.trip_check, self._on_check,
-                                    qos.stream_sub(True), raw=True)
-                if not self.hot.on:  # the executor retries what the hot loop's tick would
-                    self._retry = steady_timer(self, 0.0002, self._retry_check)
-                    self._retry.cancel()
-                self.hot.set_tick(self._check_tick)
-        if self.trip_enabled and self.pub_checked is None:
-            steady_timer(self, 0.05, self._judge_locked, MutuallyExclusiveCallbackGroup())
+        self.watch = TableWatch(self.hot, cfg, self.mode, self.guard, self.lockstep,
+                                self.trip_enabled)
+        # lockstep: the hot loop hands a switch of the controllers to the executor (it waits
+        # for their replies there) and answers the plant once they confirmed
+        self._follow_gc = self.create_guard_condition(self._follow, services)
+        self.checks = (CheckpointAnswers(
+            self, self.hot, self.watch, self._judge_checkpoint, lambda: self._target is not None,
+            lambda: "tripped" if self.tripped else "ok",
+            lambda: self.params.cfg.control.lockstep_timeout_s)
+            if self.trip_enabled and self.lockstep else None)
+        if self.trip_enabled and self.checks is None:
+            steady_timer(self, 0.05, self._judge_timer, MutuallyExclusiveCallbackGroup())
         steady_timer(self, 0.5, self._reconcile, services)
         steady_timer(self, 1.0, self._report)
         self._publish_mode()
         self._publish_config()
         self.get_logger().info(f"mode {self.mode.label}; controllers {self.controllers}"
-                               f"{'; trip checkpoints' if self.pub_checked else ''}"
-                               f"{'; supervisor on' if self.sfeed else ''}")
+                               f"{'; trip checkpoints' if self.checks else ''}"
+                               f"{'; supervisor on' if self.watch.sfeed else ''}")
         self._publish_state(None)
         self.hot.start()
 
@@ -192,27 +147,9 @@ class ModeSwitchNode(Node):
     def _publish_config(self) -> None:
         self.pub_config.publish(String(data=params_text(self.guard.flat)))
 
-    def _supervised(self, cfg: Any) -> SupervisedFeed | None:
-        """The supervisor and its feed (None with ``supervisor.enabled`` false: a trip latches
-        Passive); its stability verdict is the guard's, on the live configuration."""
-        if not cfg.supervisor.enabled:
-            return None
-        sup = make_supervisor(cfg, self.mode, self.guard.allow)
-        sup.stable = lambda m: self.guard.refuse_mode(m) is None
-        return SupervisedFeed(self.feed, CheckpointFeed(cfg), sup)
-
     def _on_change(self, cfg: Any, changed: set[str]) -> None:
         self.guard.flat.update({k: self.params.flat[k] for k in changed})
-        if any(n.startswith("control.trip_") for n in changed):
-            with self._lock:
-                self.feed = TripFeed(TripChecker(cfg.control, cfg.plant.rate_hz,
-                                                 cfg.plant.num_stages, cfg.plant.dof),
-                                     cfg.plant.rate_hz)
-                if self.sfeed is not None:
-                    self.sfeed = SupervisedFeed(self.feed, CheckpointFeed(cfg), self.sfeed.sup)
-        if self.sfeed is not None and any(n.startswith(("supervisor.", "control.trip_rms"))
-                                          for n in changed):
-            self.sfeed.sup.s = settings_from(cfg)  # applies from the next checkpoint
+        self.watch.retune(cfg, changed)
         self._publish_config()
 
     def _on_param_event(self, msg: ParameterEvent) -> None:
@@ -227,69 +164,64 @@ class ModeSwitchNode(Node):
         if got and any(self.guard.flat.get(k) != v for k, v in got.items()):
             self.guard.flat.update(got)
             cfg = self.guard.config()
-            if self.sfeed is not None and cfg is not None:
-                self.sfeed.sup.band_gain = LazyGains(cfg)  # what the floor explains, retuned
+            if cfg is not None:
+                self.watch.floor_retuned(cfg)
             self._publish_config()
 
     # -- switching ---------------------------------------------------------------------------
-    def switch(self, target: Mode) -> tuple[bool, str]:
-        """Switch every controller to ``target`` atomically; returns (success, message)."""
-        if not self._switch_lock.acquire(blocking=False):
+    async def switch(self, target: Mode) -> tuple[bool, str]:
+        """Switch every controller to ``target`` atomically; returns (success, message).
+
+        A coroutine: it waits for the controllers' replies suspended, so the node's other
+        callbacks (the trip, reports) go on meanwhile; no other switch starts before it ends.
+        """
+        if self.ctl.busy:
             return False, "another mode switch is in progress"
-        try:
-            if self.sfeed is not None:
-                refused = self.sfeed.sup.refusal(target)
-                if refused:
-                    return False, refused
-            elif self.tripped and target is not Mode.PASSIVE:
-                return False, (f"tripped ({self.trip_reason}); call {topics.LOCAL.reset_trip} "
-                               f"before leaving Passive")
-            lacking = sorted(enabled_controllers(target, self.num_stages) - set(self.controllers))
-            if lacking:
-                return False, f"{target.label} needs {', '.join(lacking)}, not in this graph"
-            refused = self.guard.refuse_mode(target)
+        if self.watch.sfeed is not None:
+            refused = self.watch.sfeed.sup.refusal(target)
             if refused:
                 return False, refused
-            old = self.mode
-            want = enabled_controllers(target, self.num_stages)
-            had = enabled_controllers(old, self.num_stages)
-            involved = [c for c in self.controllers if c in want or c in had]
-            res = self.ctl.call_all({c: c in want for c in involved}, self.switch_timeout_s)
-            failed = [c for c in involved if not res[c][0]]
-            if failed:
-                # everyone who may have applied the request goes back (repeating a state is
-                # harmless); only a controller that never got it is left alone
-                back = self.ctl.call_all({c: c in had for c in involved
-                                          if not res[c][1].startswith("not available")},
-                                         self.switch_timeout_s)
-                stuck = [c for c, r in back.items() if not r[0]]
-                msg = (f"switch to {target.label} failed: "
-                       + "; ".join(f"{c}: {res[c][1]}" for c in failed)
-                       + f"; rolled back to {old.label}"
-                       + (f" (rollback failed for {', '.join(stuck)})" if stuck else ""))
-                self.get_logger().error(msg)
-                return False, msg
-            self._set_mode(target)
-            if self.sfeed is not None:
-                with self._lock:
-                    self._drain()
-                    k = self.sfeed.newest_sample()
-                    self.sfeed.sup.request(target, k, k / self.params.cfg.plant.rate_hz)
-                    self.tripped = False
-                self._publish_state(self.sfeed.sup.transitions[-1])
-            msg = f"mode {target.label}" + (": " + ", ".join(
-                f"{c} {'on' if c in want else 'off'}" for c in involved) if involved else "")
-            self.get_logger().info(msg)
-            return True, msg
-        finally:
-            self._switch_lock.release()
+        elif self.tripped and target is not Mode.PASSIVE:
+            return False, (f"tripped ({self.trip_reason}); call {topics.LOCAL.reset_trip} "
+                           f"before leaving Passive")
+        lacking = sorted(enabled_controllers(target, self.num_stages) - set(self.controllers))
+        if lacking:
+            return False, f"{target.label} needs {', '.join(lacking)}, not in this graph"
+        refused = self.guard.refuse_mode(target)
+        if refused:
+            return False, refused
+        old = self.mode
+        want = enabled_controllers(target, self.num_stages)
+        had = enabled_controllers(old, self.num_stages)
+        involved = [c for c in self.controllers if c in want or c in had]
+        res = await self.ctl.call_all({c: c in want for c in involved},
+                                      self.switch_timeout_s)
+        failed = [c for c in involved if not res[c][0]]
+        if failed:
+            # everyone who may have applied the request goes back (repeating a state is
+            # harmless); only a controller that never got it is left alone
+            back = await self.ctl.call_all({c: c in had for c in involved
+                                            if not res[c][1].startswith("not available")},
+                                           self.switch_timeout_s)
+            stuck = [c for c, r in back.items() if not r[0]]
+            msg = (f"switch to {target.label} failed: "
+                   + "; ".join(f"{c}: {res[c][1]}" for c in failed)
+                   + f"; rolled back to {old.label}"
+                   + (f" (rollback failed for {', '.join(stuck)})" if stuck else ""))
+            self.get_logger().error(msg)
+            return False, msg
+        self._set_mode(target)
+        if self.watch.sfeed is not None:
+            self._publish_state(self.watch.requested(target))
+            self.tripped = False
+        msg = f"mode {target.label}" + (": " + ", ".join(
+            f"{c} {'on' if c in want else 'off'}" for c in involved) if involved else "")
+        self.get_logger().info(msg)
+        return True, msg
 
-    def _on_set_mode_request(self, mode: Mode, request: Trigger.Request,
-                             response: Trigger.Response) -> Trigger.Response:
-        return self._on_set_mode(mode, response)
-
-    def _on_set_mode(self, mode: Mode, response: Trigger.Response) -> Trigger.Response:
-        response.success, response.message = self.switch(mode)
+    async def _on_set_mode_request(self, mode: Mode, request: Trigger.Request,
+                                   response: Trigger.Response) -> Trigger.Response:
+        response.success, response.message = await self.switch(mode)
         self.last_result = response.message
         return response
 
@@ -304,58 +236,39 @@ class ModeSwitchNode(Node):
         return c in enabled_controllers(self.mode, self.num_stages)
 
     def _reconcile(self) -> None:
-        if not self._switch_lock.locked():
+        if not self.ctl.busy:
             self.ctl.reconcile(self._want)
 
     def _on_boot(self, c: str, msg: Int64) -> None:
         # a switch in progress tells everyone anyway
-        self.ctl.on_boot(c, msg.data, self._want, quiet=self._switch_lock.locked())
+        self.ctl.on_boot(c, msg.data, self._want, quiet=self.ctl.busy)
 
     # -- trip --------------------------------------------------------------------------------
-    def _drain(self) -> None:
-        if self.sfeed is None:
-            for i, sub in enumerate(self._trip_subs):
-                self.hot.drain(sub, partial(self._feed_trip, i))
-            return
-        # supervised: each queue decoded as one batch (4 streams per sample; ~1 us a message
-        # against ~2.5 us one by one)
-        for i, sub in enumerate(self._trip_subs):
-            b = self._take(sub, self._twists[i])
-            for s, v in zip(b.stamp_ns.tolist(), b.fields["twist"][:, self._cols], strict=True):
-                self.feed.add(i, s, v)
-        b = self._take(self._ground_sub, self._twists[-1])
-        self.sfeed.add_grounds(b.stamp_ns, b.fields["twist"][:, self._cols])
-        b = self._take(self._force_sub, self._forces)
-        self.sfeed.add_forces(b.stamp_ns, b.fields["effort"])
+    async def _judge_timer(self) -> None:
+        """Real time: judge what arrived; the controllers follow a decision before the next
+        judgement (this timer waits for them)."""
+        self._judge()
+        await self._follow()
 
-    def _take(self, sub: Any, reader: BatchReader) -> Batch:
-        bufs: list[bytes] = []
-        self.hot.drain(sub, bufs.append)
-        return reader.read(bufs)
-
-    def _feed_trip(self, i: int, buf: bytes) -> None:
-        self.feed.add(i, *read_stamped(buf, TWIST_STAMPED, self.feed.checker.dof))
-
-    def _judge_locked(self, through_ns: int | None = None) -> None:
-        if self.sfeed is not None:
-            with self._lock:
-                self._drain()
-                transitions = self.sfeed.step(through_ns)
+    def _judge(self, through_ns: int | None = None) -> None:
+        """Judge the streams through ``through_ns`` (None: what arrived); a trip or the
+        supervisor's decision sets the mode the controllers must follow (:meth:`_follow`)."""
+        self.watch.drain()
+        if self.watch.sfeed is not None:
+            transitions = self.watch.sfeed.step(through_ns)
             if transitions:
                 self._supervise(transitions)
             return
-        with self._lock:
-            self._drain()
-            # judged on after a trip too: the reported RMS shows when the table has settled
-            trip = self.feed.judge(through_ns)
+        # judged on after a trip too: the reported RMS shows when the table has settled
+        trip = self.watch.feed.judge(through_ns)
         if trip is not None and not self.tripped:
-            self._trip(trip.reason, self.feed.trip_ns)
+            self._trip(trip.reason, self.watch.feed.trip_ns)
 
     def _supervise(self, transitions: list[Transition]) -> None:
         """Carry out the supervisor's decisions: every transition is published and logged;
         the controllers follow the last one's mode (lockstep: before the plant hears the
         verdict, so the new mode runs from the next sample, as in the batch engine)."""
-        assert self.sfeed is not None
+        assert self.watch.sfeed is not None
         for tr in transitions:
             # rclpy: one call site, one severity (it raises otherwise)
             if tr.state in (State.TRIPPED, State.LATCHED):
@@ -367,67 +280,53 @@ class ModeSwitchNode(Node):
         self.tripped = last.state in (State.TRIPPED, State.LATCHED)
         self.trip_reason = last.reason if self.tripped else ""
         if self.tripped:
-            self.trip_at = (time.monotonic_ns(), sample_ns(last.sample, self.feed.rate))
+            self.trip_at = (time.monotonic_ns(), sample_ns(last.sample, self.watch.feed.rate))
         if last.mode is not self.mode:
-            with self._switch_lock:
-                want = enabled_controllers(last.mode, self.num_stages)
-                res = self.ctl.call_all({c: c in want for c in self.controllers},
-                                        self.switch_timeout_s, wait_for_service=False)
-                self._set_mode(last.mode)
-            bad = [c for c, r in res.items() if not r[0]]
-            if bad:
-                self.get_logger().error(f"supervisor: {last.mode.label}: could not switch "
-                                        f"{', '.join(bad)}")
+            self._target = (last.mode, f"supervisor: {last.mode.label}: could not switch")
+        else:
+            self._report()
+
+    def _judge_checkpoint(self, stamp_ns: int) -> None:
+        """Lockstep: judge the asked checkpoint; a switch it decides is handed to the
+        executor (:meth:`_follow` waits there for the controllers' replies)."""
+        self._judge(stamp_ns)
+        if self._target is not None:
+            self._follow_gc.trigger()
+
+    async def _follow(self) -> None:
+        """Switch the controllers to the mode a trip or the supervisor decided (after a
+        switch in progress); then report and, in lockstep, answer the plant."""
+        # rclpy's multi-threaded executor may run one trigger of a guard condition more than
+        # once: a second run while the first waits has nothing to do
+        if self._target is None or self._following:
+            return
+        self._following = True
+        mode, why = self._target
+        want = enabled_controllers(mode, self.num_stages)
+        try:
+            res = await self.ctl.call_all({c: c in want for c in self.controllers},
+                                          self.switch_timeout_s, wait_for_service=False)
+        finally:
+            self._following = False
+        self._set_mode(mode)
+        self._target = None
+        bad = [c for c, r in res.items() if not r[0]]
+        if bad:
+            self.get_logger().error(f"{why} {', '.join(bad)}")
         self._report()
+        if self.checks is not None:  # lockstep: the verdict waited for the controllers
+            self.checks.followed()
 
     def _publish_state(self, tr: Transition | None) -> None:
         """``supervisor/state``: the transition's label; at start ``ENGAGED`` (or ``OFF``
         without a supervisor)."""
         if tr is not None:
             text = tr.label
-        elif self.sfeed is None:
+        elif self.watch.sfeed is None:
             text = f"OFF {self.mode.label} at 0.0000 s: supervisor disabled"
         else:
             text = f"ENGAGED {self.mode.label} at 0.0000 s: start"
         self.pub_state.publish(String(data=text))
-
-    def _on_check(self, buf: bytes) -> None:
-        """Lockstep: the plant waits for the verdict on the checkpoint ending at ``stamp``."""
-        stamp, _ = read_header(buf)
-        if stamp <= self._answered:
-            self._answer(stamp)  # a repeated question (retransmission)
-            return
-        self._asked = stamp
-        if self._check_tick() is not None and self._retry is not None:
-            # hot path off (no tick): look again for the samples still in flight, until the
-            # plant's lockstep timeout (it asks again then)
-            self._retry_until = time.monotonic() + self.params.cfg.control.lockstep_timeout_s
-            self._retry.reset()
-
-    def _retry_check(self) -> None:
-        if self._check_tick() is None or time.monotonic() >= self._retry_until:
-            assert self._retry is not None
-            self._retry.cancel()
-
-    def _check_tick(self) -> float | None:
-        """Judge the asked checkpoint once every stage's samples through it are in; else try
-        again shortly (their DDS delivery may trail the question)."""
-        if self._asked < 0:
-            return None
-        self._drain()
-        ready = (self.sfeed.complete(self._asked) if self.sfeed is not None
-                 else self.feed.complete_ns() >= self._asked)
-        if not ready:
-            return 0.0002
-        self._judge_locked(self._asked)
-        self._answer(self._asked)
-        self._asked = -1
-        return None
-
-    def _answer(self, stamp: int) -> None:
-        self._answered = max(self._answered, stamp)
-        if self.pub_checked is not None:
-            self.pub_checked.publish(header_bytes(stamp, "tripped" if self.tripped else "ok"))
 
     def _trip(self, reason: str, stamp_ns: int) -> None:
         self.tripped, self.trip_reason = True, reason
@@ -435,35 +334,16 @@ class ModeSwitchNode(Node):
         self.trip_at = (time.monotonic_ns(), stamp_ns)
         self.get_logger().error(f"instability trip: {reason}; latching Passive until "
                                 f"{topics.LOCAL.reset_trip}")
-        k = self.feed.index(stamp_ns)
-        self.pub_state.publish(String(data=f"LATCHED Passive at {k / self.feed.rate:.4f} s: "
-                                      f"{reason} (no supervisor)"))
-        with self._switch_lock:
-            res = self.ctl.call_all(dict.fromkeys(self.controllers, False),
-                                    self.switch_timeout_s, wait_for_service=False)
-            self._set_mode(Mode.PASSIVE)
-        bad = [c for c, r in res.items() if not r[0]]
-        if bad:
-            self.get_logger().error(f"trip: could not disable {', '.join(bad)}")
-        self._report()
+        self.pub_state.publish(String(data=self.watch.latched(reason, stamp_ns)))
+        self._target = (Mode.PASSIVE, "trip: could not disable")
 
     def _on_reset_trip(self, request: Trigger.Request,
                        response: Trigger.Response) -> Trigger.Response:
         if not self.tripped:
             response.success, response.message = True, "no trip latched"
             return response
-        with self._lock:
-            self._drain()  # what arrived before the reset belongs to the tripped past
-            if self.sfeed is not None:
-                k = self.sfeed.newest_sample()
-                self.sfeed.sup.reset(k, k / self.params.cfg.plant.rate_hz)
-                self._publish_state(self.sfeed.sup.transitions[-1])
-            else:
-                self.feed.reset()
-                k = self.feed.index(max(self.feed.judged_ns, 0))
-                self.pub_state.publish(String(
-                    data=f"OFF Passive at {k / self.feed.rate:.4f} s: reset_trip"))
-            old, self.tripped, self.trip_reason = self.trip_reason, False, ""
+        self.pub_state.publish(String(data=self.watch.reset()))
+        old, self.tripped, self.trip_reason = self.trip_reason, False, ""
         response.success = True
         response.message = f"trip cleared (was: {old}); mode stays {self.mode.label}"
         self.get_logger().info(response.message)
@@ -471,7 +351,7 @@ class ModeSwitchNode(Node):
 
     def _report(self) -> None:
         missing = [c for c in self.controllers if self._want(c) and not self.ctl.ready[c]]
-        sup = self.sfeed.sup if self.sfeed is not None else None
+        sup = self.watch.sfeed.sup if self.watch.sfeed is not None else None
         riding = sup is not None and sup.state in (State.RIDE_THROUGH, State.RECOVERING)
         level = (DiagnosticStatus.ERROR if self.tripped else
                  DiagnosticStatus.WARN if missing or riding else DiagnosticStatus.OK)
@@ -482,21 +362,18 @@ class ModeSwitchNode(Node):
         values: dict[str, object] = {
             "mode": self.mode.label, "tripped": self.tripped, "trip_reason": self.trip_reason,
             "last_switch": self.last_result, "trip_mono_ns": self.trip_at[0],
-            "trip_sample_ns": self.trip_at[1], "trip_gaps": self.feed.gaps,
-            "allow_unstable": self.guard.allow,
-            "supervisor": sup.state.value if sup is not None else "off"}
-        values.update({f"rms_stage{i + 1}_mps": " ".join(f"{x:.3g}" for x in m.rms)
-                       for i, m in enumerate(self.feed.checker.monitors)})
+            "trip_sample_ns": self.trip_at[1], "allow_unstable": self.guard.allow,
+            **self.watch.status()}
         values.update({c: "present" if r else "absent" for c, r in self.ctl.ready.items()})
         arr = DiagnosticArray()
         # sample time like the other nodes' reports (the node itself runs on the wall clock)
-        judged = max(self.feed.judged_ns, 0)
+        judged = max(self.watch.feed.judged_ns, 0)
         arr.header.stamp = to_stamp(judged) if judged else self.get_clock().now().to_msg()
         arr.status = [node_status(self, level, msg, values)]
         self.pub_diag.publish(arr)
 
 
-main = main_for(ModeSwitchNode, multithreaded=True)
+main = main_for(ModeSwitchNode)
 
 if __name__ == "__main__":
     main()

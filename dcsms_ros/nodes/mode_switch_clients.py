@@ -12,6 +12,7 @@ from collections.abc import Callable
 
 from rclpy.callback_groups import CallbackGroup
 from rclpy.node import Node
+from rclpy.task import Future
 from std_srvs.srv import SetBool
 
 from dcsms_ros.core import topics
@@ -30,17 +31,33 @@ class ControllerClients:
         # a controller killed and restarted keeps its enable service "ready" (DDS liveliness
         # lease): its new boot id is what tells us it came back
         self.boots: dict[str, int] = {}
+        #: True while a call of :meth:`call_all` waits for its replies (a switch in progress).
+        self.busy = False
+        self._idle: Future | None = None
 
-    def call_all(self, states: dict[str, bool], timeout_s: float,
-                 wait_for_service: bool = True) -> dict[str, tuple[bool, str]]:
+    async def call_all(self, states: dict[str, bool], timeout_s: float,
+                       wait_for_service: bool = True) -> dict[str, tuple[bool, str]]:
         """Call ``enable(state)`` on each controller in parallel; (ok, message) per controller.
 
-        A controller whose service is not there is only waited for if ``wait_for_service``
-        (a trip does not wait); its message starts with ``not available``.
+        Await it from the node's callbacks (they run one at a time). A call made while another
+        waits for its replies starts when that one ended: switches never interleave. A
+        controller whose service is not there is only waited for if ``wait_for_service`` (a
+        trip does not wait); its message starts with ``not available``.
         """
-        return call_together(self.clients, {c: SetBool.Request(data=on)
-                                            for c, on in states.items()},
-                             timeout_s, wait_for_service)
+        while self.busy:
+            if self._idle is None:
+                self._idle = Future()
+            await self._idle
+        self.busy = True
+        try:
+            return await call_together(self.node, self.clients, {
+                c: SetBool.Request(data=on) for c, on in states.items()}, timeout_s,
+                wait_for_service)
+        finally:
+            self.busy = False
+            idle, self._idle = self._idle, None
+            if idle is not None:
+                idle.set_result(None)
 
     def tell(self, c: str, state: bool, why: str) -> None:
         """Send ``enable(state)`` to ``c`` without waiting; the answer is logged."""

@@ -38,7 +38,6 @@ from __future__ import annotations
 import fnmatch
 import importlib
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -148,14 +147,13 @@ class Recorder(Node):
         self.stats: dict[str, TopicStats] = {}
         self._skipped: set[str] = set()
         self._subs: list[Any] = []
-        # the bag and the counts are written by the executor and (composed) the driver thread
-        self._lock = threading.Lock()
+        # composed, the executor and the driver thread both write the bag (a thread-safe
+        # BagWriter); each topic's counters are written by one of them only
         ctx = self.context
         self.bus = ctx.bus if isinstance(ctx, DrivenContext) else None
         self._open = True
         self._t_start = time.monotonic()
         self._reported = (0, self._t_start, 0)
-        self.total = 0
         self.discover()
         self.create_timer(discovery_s, self.discover)
         if report_s > 0:
@@ -191,19 +189,19 @@ class Recorder(Node):
     def _subscribe(self, topic: str, msgtype: str, offered: list[Any]) -> None:
         try:
             cls = _msg_class(msgtype)
-            with self._lock:
-                self.writer.add_topic(topic, msgtype, qos_yaml(offered))
+            self.writer.add_topic(topic, msgtype, qos_yaml(offered))
         except (ImportError, AttributeError, ValueError, BagError) as exc:
             self._skip(topic, str(exc))
             return
-        st = TopicStats(topic, msgtype, _stamped(cls, msgtype), checked=len(offered) <= 1)
+        st = TopicStats(topic, msgtype, _stamped(cls, msgtype), checked=len(offered) <= 1,
+                        publishers=lambda: self.count_publishers(topic))
         self.stats[topic] = st
         qos = subscription_qos(offered, self.depth)
         holder: list[Any] = []
         local = self.bus is not None and self.bus.has_publisher(topic)
         if self.bus is not None and local:
             # before the DDS reader exists: the writers' first-sample gate waits for that
-            self.bus.observe(topic, self._observer(topic, st), self._lock)
+            self.bus.observe(topic, self._observer(topic, st))
             self.bus.add_reader(topic)
             # never read: keep-last 1 holds the DDS copies a remote reader causes
             holder.append(self.create_subscription(cls, topic, lambda m: None,
@@ -226,7 +224,6 @@ class Recorder(Node):
                 return
             write(topic, t_ns, data)
             add(seq, read_stamp(data) if stamped else None, t_ns)
-            self.total += 1
 
         return cb
 
@@ -246,23 +243,26 @@ class Recorder(Node):
                 recv)
 
         def cb(data: bytes, info: dict[str, Any]) -> None:
-            with self._lock:
-                one(data, info)
-                n = 1
-                sub = holder[0]
-                with sub.handle:
-                    take, msg_type = sub.handle.take_message, sub.msg_type
-                    while n < GREEDY:
-                        got = take(msg_type, True)
-                        if got is None:
-                            break
-                        one(*got)
-                        n += 1
-                self.total += n
+            one(data, info)
+            n = 1
+            sub = holder[0]
+            with sub.handle:
+                take, msg_type = sub.handle.take_message, sub.msg_type
+                while n < GREEDY:
+                    got = take(msg_type, True)
+                    if got is None:
+                        break
+                    one(*got)
+                    n += 1
 
         return cb
 
     # -- reporting and shutdown ------------------------------------------------------------
+
+    @property
+    def total(self) -> int:
+        """Messages recorded so far, every topic."""
+        return sum(s.count for s in list(self.stats.values()))
 
     def _report(self) -> None:
         """One throttled progress line (every ``report_period_s``)."""
@@ -305,8 +305,7 @@ class Recorder(Node):
 
     def finish(self) -> Recording:
         """Close the bag (metadata, rename into place) and return the counts and gaps."""
-        with self._lock:
-            self._open = False
+        self._open = False  # the bus's observers write no more
         for s in self.stats.values():
             s.finish()
         for sub in self._subs:

@@ -69,9 +69,14 @@ class RunSummary:
         its first arrival.
     latency_p50_s, latency_p99_s : float
         Control latency quantiles, s (nan: none measured).
-    recorded, expected : int or None
-        Messages of the per-sample streams in the bag, and how many were published (None: no
-        recording).
+    recorded, samples_x_streams : int or None
+        Messages of the per-sample streams in the bag, and samples x those streams (None: no
+        recording). In lockstep that is what their publishers published (each answers every
+        sample once; a retransmission repeats one): the bag holds all of it. In real time it
+        is only a scale: a reader of keep-last 1 skips a sample under load and publishes
+        nothing for it, a controller whose input is stale publishes zero forces of its own.
+    lockstep : bool
+        The run's schedule (what ``samples_x_streams`` means).
     """
 
     samples: int
@@ -80,13 +85,19 @@ class RunSummary:
     latency_p50_s: float
     latency_p99_s: float
     recorded: int | None = None
-    expected: int | None = None
+    samples_x_streams: int | None = None
+    lockstep: bool = True
 
     def line(self) -> str:
         """``samples N, late N (x %), stale forces N, control latency p50/p99 X/Y ms, ...``."""
         pct = 100.0 * self.late / self.samples if self.samples else 0.0
-        rec = (f"recorded {self.recorded} of {self.expected} messages"
-               if self.recorded is not None else "not recorded")
+        if self.recorded is None:
+            rec = "not recorded"
+        elif self.lockstep:
+            rec = f"recorded {self.recorded} of {self.samples_x_streams} messages"
+        else:  # not what was published (see the class notes): only the scale is given
+            rec = (f"recorded {self.recorded} stream messages (samples x streams = "
+                   f"{self.samples_x_streams})")
         return (f"samples {self.samples}, late {self.late} ({pct:.3g} %), stale forces "
                 f"{self.stale}, control latency p50/p99 {_ms(self.latency_p50_s)}/"
                 f"{_ms(self.latency_p99_s)} ms, {rec}")
@@ -123,15 +134,16 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
             return math.nan
 
     late = int(plant.get("overruns", "0")) + int(plant.get("lockstep_timeouts", "0"))
-    recorded = expected = None
+    recorded = scale = None
     if counts is not None:
         present = [s for s in streams if s in counts]
         recorded = sum(counts[s] for s in present)
-        expected = samples * len(present)
+        scale = samples * len(present)
     return RunSummary(samples=samples, late=late, stale=int(plant.get("stale_samples", "0")),
                       latency_p50_s=num("latency_p50_ms") * 1e-3,
                       latency_p99_s=num("latency_p99_ms") * 1e-3,
-                      recorded=recorded, expected=expected)
+                      recorded=recorded, samples_x_streams=scale,
+                      lockstep=plant.get("schedule", "lockstep") == "lockstep")
 
 
 __all__ = ["LatencyHistogram", "RunSummary", "summarize"]

@@ -10,14 +10,16 @@ Descriptors come from :mod:`dcsms_ros.core.schema`: description with the SI unit
 where both bounds are finite, read-only for everything except controller tuning and timeouts
 (``feedback.*``, ``feedforward.*``, ``control.*``). A set-parameters request is validated by
 building a new config with :func:`~dcsms_ros.core.config.config_from_flat`; it is rejected with
-that error as the reason, and nothing changes. Accepted changes reach the node through its
-``on_change(cfg, changed_names)`` after the values are stored.
+that error as the reason, and nothing changes (the validation does not hold the node's hot
+loop). Accepted changes reach the node through its ``on_change(cfg, changed_names)`` after the
+values are stored, under its hot-path lock (:mod:`.serialized`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable
+from contextlib import nullcontext
 from typing import Any, TypeVar
 
 from rcl_interfaces.msg import (
@@ -42,6 +44,7 @@ from dcsms_ros.graph import SCHEDULES
 from dcsms_ros.protocols.responder import Answerer
 from dcsms_ros.ros.connectivity import publishers_matched
 from dcsms_ros.ros.intraprocess import SamplePublisher
+from dcsms_ros.ros.serialized import hot_lock
 
 #: Prefixes of run-time tunable names; everything else is fixed once a node runs.
 MUTABLE_PREFIXES = ("feedback.", "feedforward.", "control.", "supervisor.")
@@ -220,6 +223,12 @@ class NodeConfig:
         flat, changed = self._candidate(params)
         if not changed:
             return
+        # the node's hot loop reads what on_change replaces: one at a time with it
+        lock = hot_lock(self.node)
+        with lock if lock is not None else nullcontext():
+            self._apply(flat, changed)
+
+    def _apply(self, flat: dict[str, Any], changed: set[str]) -> None:
         self.flat = flat
         self.cfg = config_from_flat(flat, self.source)
         self.node.get_logger().info("parameters changed: " + ", ".join(

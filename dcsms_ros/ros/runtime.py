@@ -1,8 +1,10 @@
 """``main()`` of every node process: build the node, spin it, close it (:func:`run`).
 
 Executor: :class:`rclpy.executors.SingleThreadedExecutor` for what is not per sample
-(parameters, services, timers). Nodes that wait on service replies inside a callback
-(``mode_switch``) use a :class:`~rclpy.executors.MultiThreadedExecutor` instead. The per-sample
+(parameters, services, timers); a callback that waits for service replies is an ``async def``
+(``mode_switch``'s switch), which the executor runs as a task between other callbacks. Before
+the executor gets the node, its callbacks are wrapped to run under the node's hot-path lock
+(:mod:`.serialized`): node code never locks. The per-sample
 subscriptions do not go through the executor at all: a node's :class:`~.hotpath.HotPath`
 thread serves them from a minimal wait set. Measured (``bench/pingpong.py``, two processes,
 5 s, 2026-11-25): that hot path made 7,680-7,820 round trips/s, rclpy's
@@ -27,12 +29,13 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from rclpy.duration import Duration
-from rclpy.executors import Executor, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
 
 from dcsms_ros import graph
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
+from dcsms_ros.ros.serialized import Serialized, serialize
 
 #: Exit status of a configuration error (the CLI's convention).
 EXIT_CONFIG = 2
@@ -95,6 +98,7 @@ def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
     """Spin ``node`` (and its hot path, under SCHED_FIFO ``rt_priority`` if 1-99) until
     ``stop()`` is true, the node finished, or the context shut down; a failing hot-path
     handler raises here, as a failing callback would."""
+    serial = serialize(node)  # before the executor can run any of its callbacks
     executor.add_node(node)
     hot = getattr(node, "hot", None)
     if hot is not None:
@@ -108,7 +112,20 @@ def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
             raise hot.error
         return stop() or getattr(node, "finished", False)
 
-    spin_until(executor, done)
+    try:
+        spin_until(executor, done)
+    finally:
+        report_hold(node, serial)
+
+
+def report_hold(node: Node, serial: Serialized | None) -> None:
+    """Log, at exit, the longest time one of ``node``'s executor callbacks held its hot loop
+    (a sample waits as long: :mod:`.serialized`)."""
+    if serial is None or not serial.calls:
+        return
+    node.get_logger().info(f"longest executor callback under the hot-path lock: "
+                           f"{serial.longest_s * 1e3:.3f} ms ({serial.longest}; "
+                           f"{serial.calls} calls)")
 
 
 def quiesce(executor: Executor, node: Node, timeout_s: float = 2.0) -> None:
@@ -151,8 +168,7 @@ def close_nodes(nodes: Sequence[Node]) -> None:
         node.destroy_node()
 
 
-def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
-        multithreaded: bool = False) -> int:
+def run(factory: Callable[..., Node], args: Sequence[str] | None = None) -> int:
     """Create a node with ``factory(context=...)``, spin it, shut down cleanly.
 
     Parameters
@@ -161,8 +177,6 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
         Called as ``factory(context=ctx)``; returns the node.
     args : sequence of str, optional
         Command line (default ``sys.argv``), ``--ros-args`` included.
-    multithreaded : bool
-        Use a 4-thread :class:`MultiThreadedExecutor` (nodes that call services from callbacks).
 
     Returns
     -------
@@ -177,15 +191,10 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
             node = factory(context=ros.context)
             if rt_warning:
                 node.get_logger().warning(rt_warning)
-            executor: Executor = (
-                MultiThreadedExecutor(num_threads=4, context=ros.context) if multithreaded
-                else SingleThreadedExecutor(context=ros.context))
+            executor = SingleThreadedExecutor(context=ros.context)
             try:
                 spin_node(node, executor, lambda: bool(ros.stop), rt_priority)
             finally:
-                # let callbacks still running in worker threads end before the node goes away
-                if multithreaded:
-                    quiesce(executor, node)
                 executor.shutdown(timeout_sec=2.0)
         except DcsmsError as exc:
             status = config_error(exc)
@@ -200,10 +209,10 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
     return status
 
 
-def main_for(factory: Callable[..., Node], multithreaded: bool = False) -> Callable[..., None]:
+def main_for(factory: Callable[..., Node]) -> Callable[..., None]:
     """A ``main(args=None)`` entry point for ``factory`` that exits with :func:`run`'s status."""
 
     def main(args: Sequence[str] | None = None) -> None:
-        sys.exit(run(factory, args, multithreaded))
+        sys.exit(run(factory, args))
 
     return main

@@ -1,10 +1,12 @@
-"""Several service calls made at once, waited for by a caller that the executor does not run.
+"""Several service calls made at once and awaited by an ``async def`` callback.
 
 mode_switch switches every controller of a mode atomically: it sends each its request at once
 and needs every reply (or the lack of one) before it answers its own caller or, in lockstep,
-before the plant hears the trip verdict. The replies are taken by the executor's threads; the
-caller (a service callback of a multi-threaded executor, or the hot thread) polls the futures,
-which needs no free executor thread for done-callbacks (the composed graph has three).
+before the plant hears the trip verdict. :func:`call_together` is a coroutine: the callback that
+awaits it is suspended (rclpy's executor runs it as a task) while the executor takes the
+replies, so it needs no second thread, no lock and no polling of the replies. The deadline is a
+one-shot timer; a service that is not there yet is looked for every :data:`SERVICE_POLL_S`
+(rclpy has no event for a service that appears).
 """
 
 from __future__ import annotations
@@ -13,25 +15,61 @@ import time
 from collections.abc import Mapping
 from typing import Any
 
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.client import Client
+from rclpy.node import Node
+from rclpy.task import Future
 
-#: Seconds between looks for a service that is not there yet, and for replies.
+from dcsms_ros.ros.clock import steady_timer
+
+#: Seconds between looks for a service that is not there yet.
 SERVICE_POLL_S = 0.01
-REPLY_POLL_S = 0.0005
 #: Seconds a request already sent may still take after the deadline (a fair chance to answer
 #: after a long wait for another service).
 REPLY_GRACE_S = 0.25
 
 
-def call_together(clients: Mapping[str, Client], requests: Mapping[str, Any], timeout_s: float,
-                  wait_for_service: bool = True) -> dict[str, tuple[bool, str]]:
+async def settled(node: Node, futures: list[Future], timeout_s: float) -> None:
+    """Return once every future in ``futures`` is done or ``timeout_s`` passed (a one-shot
+    timer on ``node``; the awaiting task is resumed by the executor that completes them)."""
+    if all(f.done() for f in futures):
+        return
+    done = Future()
+
+    def settle(_: Any = None) -> None:
+        if not done.done():
+            done.set_result(None)
+
+    def check(_: Any) -> None:
+        if all(f.done() for f in futures):
+            settle()
+
+    for f in futures:
+        f.add_done_callback(check)
+    timer = steady_timer(node, max(timeout_s, 1e-6), settle, ReentrantCallbackGroup())
+    try:
+        await done
+    finally:
+        node.destroy_timer(timer)
+
+
+async def pause(node: Node, seconds: float) -> None:
+    """Return after ``seconds`` (a one-shot timer on ``node``)."""
+    await settled(node, [Future()], seconds)
+
+
+async def call_together(node: Node, clients: Mapping[str, Client], requests: Mapping[str, Any],
+                        timeout_s: float,
+                        wait_for_service: bool = True) -> dict[str, tuple[bool, str]]:
     """Call ``clients[k]`` with ``requests[k]`` for every key of ``requests``, in parallel;
     (ok, message) per key, from the reply's ``success`` and ``message``.
 
     Parameters
     ----------
+    node : Node
+        The clients' node (its executor takes the replies and runs the deadline timer).
     clients : mapping of str to Client
-        The service clients (their replies are taken by an executor on another thread).
+        The service clients.
     requests : mapping of str to request
         The request per key of ``clients``.
     timeout_s : float
@@ -43,7 +81,7 @@ def call_together(clients: Mapping[str, Client], requests: Mapping[str, Any], ti
     """
     deadline = time.monotonic() + timeout_s
     out: dict[str, tuple[bool, str]] = {}
-    futures = {}
+    futures: dict[str, Future] = {}
     pending = list(requests)
     # every ready service gets its request at once; the others are waited for in turn
     while pending:
@@ -56,11 +94,10 @@ def call_together(clients: Mapping[str, Client], requests: Mapping[str, Any], ti
             for k in pending:
                 out[k] = (False, f"not available (no service {clients[k].srv_name})")
             break
-        time.sleep(SERVICE_POLL_S)
+        await pause(node, min(SERVICE_POLL_S, max(deadline - time.monotonic(), 0.0)))
     deadline = max(deadline, time.monotonic() + REPLY_GRACE_S)
+    await settled(node, list(futures.values()), deadline - time.monotonic())
     for k, fut in futures.items():
-        while not fut.done() and time.monotonic() < deadline:
-            time.sleep(REPLY_POLL_S)
         if not fut.done():
             fut.cancel()
             out[k] = (False, f"no reply within {timeout_s:g} s")
@@ -71,4 +108,4 @@ def call_together(clients: Mapping[str, Client], requests: Mapping[str, Any], ti
     return out
 
 
-__all__ = ["REPLY_GRACE_S", "REPLY_POLL_S", "SERVICE_POLL_S", "call_together"]
+__all__ = ["REPLY_GRACE_S", "SERVICE_POLL_S", "call_together", "pause", "settled"]

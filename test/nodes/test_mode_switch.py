@@ -20,6 +20,7 @@ from dcsms_ros.core.modes import Mode
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
 from dcsms_ros.nodes.mode_switch import ModeSwitchNode
 from dcsms_ros.ros import qos
+from dcsms_ros.ros.serialized import serialize
 
 
 class Graph:
@@ -37,6 +38,7 @@ class Graph:
                                         qos.latched())
         self.ex = MultiThreadedExecutor(num_threads=4, context=ctx)
         for n in (self.ms, *self.fb, self.client):
+            serialize(n)  # as the host does: callbacks one at a time with the hot loop
             self.ex.add_node(n)
         self.thread = __import__("threading").Thread(target=self.ex.spin, daemon=True)
         self.thread.start()
@@ -147,14 +149,14 @@ def test_supervisor_parameters_change_at_run_time(ctx, cfg):
     supervisor (from its next checkpoint); an out-of-range one is rejected with the reason."""
     g = Graph(ctx, cfg)
     try:
-        assert g.ms.sfeed is not None and g.ms.sfeed.sup.s.recover_after_s == 5.0
+        assert g.ms.watch.sfeed is not None and g.ms.watch.sfeed.sup.s.recover_after_s == 5.0
         ok = g.ms.set_parameters([Parameter("supervisor.recover_after_s", value=9.0),
                                   Parameter("supervisor.ride_mode", value="passive")])
         assert all(r.successful for r in ok), ok
-        assert g.ms.sfeed.sup.s.recover_after_s == 9.0
-        assert g.ms.sfeed.sup.s.ride_mode is Mode.PASSIVE
+        assert g.ms.watch.sfeed.sup.s.recover_after_s == 9.0
+        assert g.ms.watch.sfeed.sup.s.ride_mode is Mode.PASSIVE
         bad = g.ms.set_parameters([Parameter("supervisor.hold_s", value=-1.0)])
         assert not bad[0].successful and "supervisor.hold_s" in bad[0].reason, bad
-        assert g.ms.sfeed.sup.s.hold_s == 2.0
+        assert g.ms.watch.sfeed.sup.s.hold_s == 2.0
     finally:
         g.close()

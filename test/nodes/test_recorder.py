@@ -204,6 +204,69 @@ def test_sequence_gaps_and_restarts() -> None:
     assert (st.count, st.seq_gaps, st.restarts) == (13, 1, 1)
 
 
+def test_a_new_publisher_between_discoveries_is_not_a_restart() -> None:
+    """A second publisher that starts before the recorder's next discovery (every node writes
+    /diagnostics) interleaves its own numbers: asked at the first jump, the topic's publisher
+    count stops the checks instead of counting restarts and gaps; one publisher still has
+    its restarts counted."""
+    count = [1]
+    st = TopicStats("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", stamped=False,
+                    publishers=lambda: count[0])
+    for seq in (1, 2, 3):
+        st.add(seq, None, 0)
+    count[0] = 2  # a second node's writer, not known yet to the recorder's set_publishers
+    for seq in (1, 4, 2, 5, 3):
+        st.add(seq, None, 0)
+    assert (st.count, st.restarts, st.seq_gaps, st.checked) == (8, 0, 0, False)
+    count[0] = 1
+    alone = TopicStats("/t", cdr.TWIST_STAMPED, publishers=lambda: count[0])
+    for seq in (1, 2, 1, 5):
+        alone.add(seq, None, 0)
+    assert (alone.restarts, alone.seq_gaps, alone.seq_missing) == (1, 1, 3)
+
+
+def test_a_late_second_publisher_is_not_counted_as_restarts(ctx, tmp_path: Path) -> None:
+    """Over DDS: the recorder subscribed while the topic had one writer; a second writer
+    starts before its next discovery and both publish, interleaved (what every node does on
+    /diagnostics): no restart and no sequence gap is reported, and every message is kept."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from dcsms_ros.nodes.recorder import Recorder
+
+    rec = Recorder(str(tmp_path / "bag"), ["/probe_diag"], context=ctx, parameter_overrides=[
+        Parameter("discovery_period_s", value=1000.0), Parameter("report_period_s", value=0.0)])
+    pubs_node = rclpy.create_node("writers", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(rec)
+    ex.add_node(pubs_node)
+    try:
+        qos = QoSProfile(depth=100)
+        first = pubs_node.create_publisher(String, "/probe_diag", qos)
+        end = time.monotonic() + 10.0
+        while "/probe_diag" not in rec.stats and time.monotonic() < end:
+            rec.discover()
+            ex.spin_once(timeout_sec=0.05)
+        while first.get_subscription_count() == 0 and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        for k in range(3):
+            first.publish(String(data=f"a{k}"))
+        second = pubs_node.create_publisher(String, "/probe_diag", qos)
+        while second.get_subscription_count() == 0 and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        for k in range(5):  # interleaved: a3 b0 a4 b1 ...
+            first.publish(String(data=f"a{k + 3}"))
+            second.publish(String(data=f"b{k}"))
+        st = rec.stats["/probe_diag"]
+        while st.count < 13 and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        assert (st.count, st.restarts, st.seq_gaps) == (13, 0, 0), st
+    finally:
+        rec.finish()
+        rec.destroy_node()
+        pubs_node.destroy_node()
+
+
 def test_existing_out_is_one_line_error(tmp_path: Path,
                                         capsys: pytest.CaptureFixture[str]) -> None:
     """An existing OUT is refused before any ROS work: one line, exit 2."""

@@ -41,10 +41,15 @@ def test_summary_from_a_plant_report_and_bag_counts() -> None:
              "stale_samples": "7", "latency_p50_ms": "0.3100", "latency_p99_ms": "1.2000"}
     counts = {"/a": 4000, "/b": 3990, "/dcsms/mode": 3}
     s = summarize(plant, counts, ["/a", "/b", "/c"])
-    assert (s.samples, s.late, s.stale, s.recorded, s.expected) == (4000, 40, 7, 7990, 8000)
+    assert (s.samples, s.late, s.stale, s.recorded, s.samples_x_streams) == (4000, 40, 7, 7990,
+                                                                             8000)
     assert s.latency_p99_s == pytest.approx(1.2e-3)
     assert s.line() == ("samples 4000, late 40 (1 %), stale forces 7, control latency "
                         "p50/p99 0.310/1.200 ms, recorded 7990 of 8000 messages")
     assert s.to_dict()["late_fraction"] == pytest.approx(0.01)
+    # real time: samples x streams is not what was published; the line does not say "of"
+    rt = summarize({**plant, "schedule": "realtime"}, counts, ["/a", "/b", "/c"])
+    assert rt.line().endswith("recorded 7990 stream messages (samples x streams = 8000)")
+    assert not rt.to_dict()["lockstep"]
     bare = summarize({"sample": "10"}, None, [])
     assert bare.line().endswith("p50/p99 -/- ms, not recorded")

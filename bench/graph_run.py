@@ -1,0 +1,157 @@
+"""One run of the node graph and its timings, for ``graph_bench.py``.
+
+:func:`run_graph` starts the graph (one process per node or composed, with or without a
+recorder) through ``dcsms_ros.cli.deploy``, lets the plant step ``seconds`` of simulated time,
+and reads what the plant wrote about every sample (``timing_file``: the wall time of each
+sample, per controller the time from a sample's publication to the arrival of the force stamped
+with it), the CPU of each process (``/proc/<pid>/stat``) and, when recorded, the bag's message
+counts. :func:`lockstep_rate`, :func:`realtime_stats` and :func:`p50_us` reduce it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+CONFIG = HERE.parent / "config" / "table1.yaml"
+
+
+def _cpu_ticks(pid: int) -> int | None:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return int(fields[11]) + int(fields[12])  # utime + stime (fields 14, 15)
+
+
+@contextlib.contextmanager
+def env(**kv: str) -> Any:
+    old = {k: os.environ.get(k) for k in kv}
+    os.environ.update(kv)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool = True,
+              timeout_s: float = 600.0, on_running: Any = None, rt_priority: int = 0,
+              composed: bool = False, record: str | None = None,
+              config: Path = CONFIG) -> dict[str, Any]:
+    """Start the graph (one process per node, or ``composed``), step ``seconds`` of simulated
+    time, return the timings. ``record``: ``process`` or ``composed`` runs the recorder (every
+    topic of the graph and /diagnostics, as ``dcsms up --record`` does) beside it.
+
+    ``on_running(kids)`` (e.g. a profiler attaching to ``kid.proc.pid``) is called once the
+    plant steps."""
+    from dcsms_ros.cli import deploy
+    from dcsms_ros.core.config import load_config
+    from dcsms_ros.core.modes import Mode
+    from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, define_graph
+
+    cfg = load_config(config)
+    run_dir = Path(tempfile.mkdtemp(prefix=f"graph-{schedule}-", dir=tmp))
+    timing = run_dir / "timing.npz"
+    spec = define_graph(cfg, schedule=schedule, mode=Mode.DFBC_FFC, duration_s=seconds)
+    recorded = [f"{spec.namespace}/*", "/diagnostics"]
+    if record and schedule == "lockstep":  # lockstep waits for the recorder, as `up` does
+        spec = define_graph(cfg, schedule=schedule, mode=Mode.DFBC_FFC, duration_s=seconds,
+                            observers=spec.lockstep_observed())
+    spec = spec.with_params("plant_simulator", timing_file=str(timing))
+    params, graph_file = deploy.write_files(spec, run_dir)
+    bag = run_dir / "bag"
+    rec: list[deploy.Child] = []
+    if record == "process":
+        rec = [deploy.Child("recorder", [*deploy.recorder_command(bag, recorded),
+                                         "--queue-depth", str(LOCKSTEP_WRITER_DEPTH)])]
+    if composed:
+        kids = [deploy.composed_child(graph_file, params, rt_priority,
+                                      [str(bag), *recorded] if record == "composed" else ())]
+    else:
+        kids = deploy.children(spec, params, rt_priority)
+    plant = kids[-1]
+    with env(ROS_DOMAIN_ID=str(domain), DCSMS_HOT_PATH="1" if hot else "0"):
+        deploy.start(rec, run_dir, verbose=False)
+        deploy.start(kids, run_dir, verbose=False)
+    try:
+        assert plant.proc is not None and plant.log is not None
+        deadline = time.monotonic() + timeout_s
+        cpu0: dict[str, int | None] = {}
+        t_cpu0 = 0.0
+        while plant.proc.poll() is None and time.monotonic() < deadline:
+            if not cpu0 and "graph connected" in plant.log.read_text(errors="replace"):
+                t_cpu0 = time.monotonic()
+                cpu0 = {k.name: _cpu_ticks(k.proc.pid) for k in kids + rec
+                        if k.proc is not None}
+                if on_running is not None:
+                    on_running(kids)
+            time.sleep(0.02)
+        t_cpu1 = time.monotonic()
+        cpu1 = {k.name: _cpu_ticks(k.proc.pid) for k in kids + rec if k.proc is not None}
+        if plant.proc.poll() is None:
+            raise TimeoutError(f"{schedule} graph did not finish within {timeout_s:g} s")
+    finally:
+        deploy.stop(kids, deploy.RECORDER_STOP_TIMEOUTS if record == "composed" else
+                    deploy.STOP_TIMEOUTS)
+        deploy.stop(rec, deploy.RECORDER_STOP_TIMEOUTS)
+    if plant.proc.returncode != 0 or not timing.exists():
+        raise RuntimeError(f"plant exited {plant.proc.returncode}: "
+                           f"{plant.log.read_text()[-2000:] if plant.log else ''}")
+    z = np.load(timing)
+    hz = os.sysconf("SC_CLK_TCK")
+    span = max(t_cpu1 - t_cpu0, 1e-9)
+    cpu = {n: (cpu1[n] - cpu0[n]) / hz / span for n in cpu0
+           if cpu0.get(n) is not None and cpu1.get(n) is not None}
+    c0, c1 = z["cpu_s"]
+    t = z["t_pub_ns"].astype(np.float64) * 1e-9
+    # the plant's process CPU over its run (composed: every node, the in-process recorder)
+    cpu["composed" if composed else "plant_simulator"] = (
+        (c1 - c0) / max(t[-1] - t[0], 1e-9) if c1 > c0 else float("nan"))
+    lat = np.concatenate([z[k] for k in z.files if k.startswith("lat_ns_")]) * 1e-9
+    out = {"t": t, "rate_hz": float(z["rate_hz"]), "cpu": cpu, "latency_s": lat,
+           "overruns": int(z["overruns"]), "recorded": None,
+           "controllers": len([k for k in z.files if k.startswith("lat_ns_")])}
+    if record and bag.exists():
+        from rosbags.rosbag2 import Reader
+
+        with Reader(bag) as r:
+            out["recorded"] = {c.topic: c.msgcount for c in r.connections}
+    return out
+
+
+def lockstep_rate(r: dict[str, Any]) -> float:
+    """Steps per second from sample 10 on (sample 0 waits for the readers to match)."""
+    t = r["t"][10:]
+    return (t.size - 1) / (t[-1] - t[0])
+
+
+def realtime_stats(r: dict[str, Any]) -> dict[str, float]:
+    """Achieved rate, period percentiles (s), deadline-miss ratio, latency percentiles (s)."""
+    t, period = r["t"][10:], 1.0 / r["rate_hz"]
+    p = np.diff(t)
+    lat = r["latency_s"]
+    return {"rate_hz": (t.size - 1) / (t[-1] - t[0]), "p50": float(np.percentile(p, 50)),
+            "p99": float(np.percentile(p, 99)), "p999": float(np.percentile(p, 99.9)),
+            "max": float(p.max()), "miss": float(np.mean(p > 1.5 * period)),
+            "lat50": float(np.percentile(lat, 50)), "lat99": float(np.percentile(lat, 99)),
+            "samples": float(t.size)}
+
+
+def p50_us(r: dict[str, Any]) -> float:
+    """Median step interval of a lockstep run (us): robust to the preemptions of a shared
+    machine, which the mean rate is not."""
+    return float(np.percentile(np.diff(r["t"]), 50) * 1e6)
+
+
+__all__ = ["CONFIG", "env", "lockstep_rate", "p50_us", "realtime_stats", "run_graph"]

@@ -1,0 +1,72 @@
+"""No child of a deployment outlives its parent: a parent killed with SIGKILL (no clean-up of
+its own, as `make bench` interrupted kills `dcsms up`) leaves no process behind, and the
+recorder it started still closes its bag (SIGTERM is its clean stop)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+#: The parent: starts a recorder and an idle child through deploy.start, prints their pids,
+#: then waits to be killed.
+PARENT = r"""
+import json, sys, time
+from pathlib import Path
+from dcsms_ros.cli import deploy
+out = Path(sys.argv[1])
+kids = [deploy.Child("recorder", deploy.recorder_command(out / "bag", ["/reap/*"])),
+        deploy.Child("idle", [sys.executable, "-c", "import time; time.sleep(120)"])]
+deploy.start(kids, out, verbose=False)
+print(json.dumps([k.proc.pid for k in kids]), flush=True)
+time.sleep(120)
+"""
+
+
+def _alive(pid: int) -> bool:
+    """True while ``pid`` exists and is not a zombie."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux")
+def test_children_end_when_the_parent_is_killed(domain: int, tmp_path: Path) -> None:
+    parent = subprocess.Popen([sys.executable, "-c", PARENT, str(tmp_path)],
+                              stdout=subprocess.PIPE, text=True, start_new_session=True)
+    kids: list[int] = []
+    try:
+        assert parent.stdout is not None
+        kids = json.loads(parent.stdout.readline())
+        assert len(kids) == 2 and all(_alive(p) for p in kids)
+        # the recorder is up (it logs its start) before its parent goes
+        log = tmp_path / "recorder.log"
+        end = time.monotonic() + 30.0
+        while "recording" not in (log.read_text() if log.exists() else "") and \
+                "0 messages" not in (log.read_text() if log.exists() else "") and \
+                time.monotonic() < end:
+            time.sleep(0.1)
+        time.sleep(1.0)
+        parent.send_signal(signal.SIGKILL)
+        parent.wait(10.0)
+        end = time.monotonic() + 20.0
+        while any(_alive(p) for p in kids) and time.monotonic() < end:
+            time.sleep(0.05)
+        assert not any(_alive(p) for p in kids), [p for p in kids if _alive(p)]
+        # the recorder stopped cleanly: its bag is closed, not left half-written
+        assert (tmp_path / "bag" / "metadata.yaml").exists(), log.read_text()[-2000:]
+        assert not (tmp_path / "bag.partial").exists()
+    finally:
+        for pid in [parent.pid, *kids]:
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)

@@ -1,0 +1,155 @@
+"""The host runs a node's executor callbacks one at a time with its hot loop (ros/serialized.py):
+real rclpy nodes, a multi-threaded executor, messages over DDS."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import pytest
+import rclpy
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from std_msgs.msg import Int64
+from std_srvs.srv import Trigger
+
+from dcsms_ros.ros import qos
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.serialized import Serialized, serialize
+from dcsms_ros.ros.services import pause
+
+#: Seconds each callback and handler stays busy (long enough for threads to overlap).
+BUSY_S = 0.002
+
+
+class Probe(Node):
+    """A node whose hot handler, timer, service and async service count how many of them run
+    at once (no lock of its own)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("probe", **kwargs)
+        self.hot = HotPath(self)
+        self.inside = self.most = 0
+        self.handled = self.served = self.ticks = 0
+        self.suspended = False
+        self.hot.subscribe(Int64, "probe_in", self._on_msg, qos.stream_sub(True))
+        self.create_timer(0.001, self._on_timer)
+        self.create_service(Trigger, "busy", self._on_busy)
+        self.create_service(Trigger, "slow", self._on_slow)
+        self.hot.start()
+
+    def _busy(self) -> None:
+        self.inside += 1
+        self.most = max(self.most, self.inside)
+        end = time.perf_counter() + BUSY_S
+        while time.perf_counter() < end:
+            pass
+        self.inside -= 1
+
+    def _on_msg(self, msg: Int64) -> None:
+        self._busy()
+        self.handled += 1
+
+    def _on_timer(self) -> None:
+        self._busy()
+        self.ticks += 1
+
+    def _on_busy(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
+        self._busy()
+        self.served += 1
+        res.success = True
+        return res
+
+    async def _on_slow(self, req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
+        self._busy()
+        self.suspended = True
+        await pause(self, 0.3)
+        self.suspended = False
+        self._busy()
+        res.success = True
+        return res
+
+
+def _spun(ctx: Any, threads: int, serialized: bool = True
+          ) -> tuple[Probe, Node, MultiThreadedExecutor, Serialized | None]:
+    """The probe (wrapped as the host does, before the executor gets it) and a driver node on
+    a multi-threaded executor spinning in a thread."""
+    probe = Probe(context=ctx)
+    serial = serialize(probe) if serialized else None
+    other = rclpy.create_node("driver", context=ctx)
+    ex = MultiThreadedExecutor(num_threads=threads, context=ctx)
+    ex.add_node(probe)
+    ex.add_node(other)
+    threading.Thread(target=ex.spin, daemon=True).start()
+    return probe, other, ex, serial
+
+
+@pytest.mark.parametrize("serialized", [True, False], ids=["host", "bare"])
+def test_callbacks_never_run_beside_the_hot_loop(ctx, serialized: bool) -> None:
+    """With the host's wrapping no executor callback ever runs while the hot handler does, on a
+    4-thread executor under load; without it they do overlap (the test can fail)."""
+    probe, other, ex, serial = _spun(ctx, 4, serialized)
+    try:
+        pub = other.create_publisher(Int64, "probe_in", qos.stream_pub(True))
+        cli = other.create_client(Trigger, "busy")
+        assert cli.wait_for_service(timeout_sec=10.0)
+        end = time.monotonic() + 10.0
+        while pub.get_subscription_count() == 0 and time.monotonic() < end:
+            time.sleep(0.01)
+        futs = []
+        for k in range(300):
+            pub.publish(Int64(data=k))
+            if not futs or futs[-1].done():  # one at a time: the request queue is short
+                futs.append(cli.call_async(Trigger.Request()))
+            time.sleep(0.002)
+        end = time.monotonic() + 10.0
+        while len(futs) < 10 and time.monotonic() < end:  # services beside the timer
+            if futs[-1].done():
+                futs.append(cli.call_async(Trigger.Request()))
+            time.sleep(0.002)
+        while (probe.handled < 300 or not all(f.done() for f in futs)) and \
+                time.monotonic() < end:
+            time.sleep(0.01)
+        assert probe.handled == 300 and probe.served == len(futs) >= 10 and probe.ticks > 10
+        if serialized:
+            assert probe.most == 1
+            assert serial is not None and serial.calls >= probe.ticks + probe.served
+            print(f"\nlongest hold {serial.longest_s * 1e3:.2f} ms ({serial.longest})")
+        else:
+            assert probe.most > 1  # what the wrapping prevents
+    finally:
+        ex.shutdown(timeout_sec=2.0)
+        probe.hot.stop()
+        probe.destroy_node()
+        other.destroy_node()
+
+
+def test_an_async_callback_frees_the_hot_loop_while_it_waits(ctx) -> None:
+    """An ``async def`` service holds the lock only between awaits: while it waits 0.3 s the
+    hot loop's lock is free and messages are handled; it then answers."""
+    probe, other, ex, serial = _spun(ctx, 2)
+    assert serial is not None
+    try:
+        cli = other.create_client(Trigger, "slow")
+        assert cli.wait_for_service(timeout_sec=10.0)
+        fut = cli.call_async(Trigger.Request())
+        end = time.monotonic() + 5.0
+        while not probe.suspended and time.monotonic() < end:
+            time.sleep(0.002)
+        assert probe.suspended
+        free = probe.hot.lock.acquire(timeout=0.1)
+        if free:
+            probe.hot.lock.release()
+        assert free, "the lock is held while the callback waits"
+        end = time.monotonic() + 5.0
+        while not fut.done() and time.monotonic() < end:
+            time.sleep(0.005)
+        assert fut.done() and fut.result().success
+        assert not probe.suspended
+        assert serial.longest_s < 0.1  # no hold spans the 0.3 s wait
+    finally:
+        ex.shutdown(timeout_sec=2.0)
+        probe.hot.stop()
+        probe.destroy_node()
+        other.destroy_node()
