@@ -37,13 +37,12 @@ from typing import Any
 
 from rclpy.callback_groups import CallbackGroup
 from rclpy.node import Node
-from rclpy.publisher import Publisher
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.localbus import Endpoint, Inbox, LocalBus
 from dcsms_ros.ros.hotloop import GIL_SWITCH_S, IDLE_S, DrivenContext, HotLoop, enabled
-from dcsms_ros.ros.intraprocess import BusPublisher
+from dcsms_ros.ros.intraprocess import BusPublisher, DirectPublisher, SamplePublisher
 
 
 class DetachedGroup(CallbackGroup):
@@ -145,11 +144,11 @@ class HotPath:
             return self.bus.inbox(topic)
         return self.bus.subscribe(topic, handler, self.lock, latest_only)
 
-    def publisher(self, msg_type: Any, topic: str, qos: QoSProfile) -> Publisher | BusPublisher:
+    def publisher(self, msg_type: Any, topic: str, qos: QoSProfile) -> SamplePublisher:
         """A per-sample publisher (serialized messages): composed, a :class:`BusPublisher`
-        (in-process delivery, DDS only for remote readers); else the node's plain one."""
+        (in-process delivery, DDS only for remote readers); else a :class:`DirectPublisher`."""
         pub = self.node.create_publisher(msg_type, topic, qos)
-        return pub if self.bus is None else BusPublisher(pub, self.bus)
+        return DirectPublisher(pub) if self.bus is None else BusPublisher(pub, self.bus)
 
     def served_from_dds(self, sub: Subscription) -> bool:
         """True if ``sub``'s messages come from DDS: no in-process writer of its topic, or

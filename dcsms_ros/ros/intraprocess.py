@@ -26,6 +26,7 @@ DDS only when DDS has a reader to give it to:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from rclpy.duration import Duration
@@ -94,7 +95,44 @@ class BusPublisher:
         return bool(self.pub.wait_for_all_acked(timeout))
 
 
-#: What a node's per-sample publisher is: a :class:`BusPublisher` composed, else rclpy's own.
-SamplePublisher = Publisher | BusPublisher
+class DirectPublisher:
+    """A per-sample publisher of one process per node: rclpy's publisher, whose
+    :meth:`publish` is its handle's ``publish_raw`` (rclpy's ``Publisher.publish`` enters the
+    handle and checks the type at every call: 1.7 us, the bound method 0.6 us). Serialized
+    messages only. The handle lives as long as the node: the hot loop ends before the node is
+    destroyed (:func:`.runtime.run`); a publication after that raises rclpy's error.
 
-__all__ = ["BusPublisher", "SamplePublisher"]
+    Parameters
+    ----------
+    pub : Publisher
+        The node's publisher of the topic.
+    """
+
+    def __init__(self, pub: Publisher) -> None:
+        self.pub = pub
+        self.publish: Callable[[bytes], None] = pub.handle.publish_raw
+
+    @property
+    def topic_name(self) -> str:
+        """The fully resolved topic name."""
+        return str(self.pub.topic_name)
+
+    @property
+    def handle(self) -> Any:
+        """The publisher's handle."""
+        return self.pub.handle
+
+    def get_subscription_count(self) -> int:
+        """Matched readers."""
+        return self.pub.get_subscription_count()
+
+    def wait_for_all_acked(self, timeout: Duration) -> bool:
+        """Wait for the reliable readers' acknowledgements."""
+        return bool(self.pub.wait_for_all_acked(timeout))
+
+
+#: What a node's per-sample publisher is: a :class:`BusPublisher` composed, else a
+#: :class:`DirectPublisher` (or rclpy's own).
+SamplePublisher = Publisher | BusPublisher | DirectPublisher
+
+__all__ = ["BusPublisher", "DirectPublisher", "SamplePublisher"]
