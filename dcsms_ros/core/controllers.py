@@ -8,6 +8,7 @@ sample whose forces clip restores the filter state from before that sample.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -158,13 +159,24 @@ class _Loop:
         self._filter = SosFilter(np.array(sos) if sos else np.zeros((0, 1, 6)), len(sos))
         self._saved = self._filter.get_state()
         self._axes_list: list[int] = self._axes.tolist()
-        self._state_flat = flat(self._filter.arrays.state)
-        self._saved_flat = flat(self._saved)
+        self._views()
         self.fader = Fader(cfg.control.fade_time_s, cfg.plant.dt, on=enabled)
         self.fader.set_target(enabled)
         self.saturations = 0
         self.nonfinite = 0
         self.last_saturated = 0
+
+    def _views(self) -> None:
+        self._state_flat = flat(self._filter.arrays.state)
+        self._saved_flat = flat(self._saved)
+
+    def __getstate__(self) -> dict[str, Any]:
+        # views are not copied or pickled: a copy gets views of its own arrays
+        return {k: v for k, v in self.__dict__.items() if k not in ("_state_flat", "_saved_flat")}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._views()
 
     @property
     def enabled(self) -> bool:

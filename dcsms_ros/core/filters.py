@@ -243,12 +243,23 @@ class SosFilter:
         self.sections = int(s.shape[1])
         self._z = np.zeros((self.sections, 2, self.channels))
         self._y = np.zeros(self.channels)
+        self._scalar = self.channels * self.sections <= SCALAR_MAX
+        self._views()
+
+    def _views(self) -> None:
         # flat double views of the same memory (the arrays stay the filter's state, shared with
         # fastsim): a few channels step as Python floats, ~0.6 us instead of ~7 us of numpy
         # calls per sample for one channel and two sections, with the same operations
         self._flat = tuple(flat(a) for a in
                            (self._b0, self._b1, self._b2, self._a1, self._a2, self._z))
-        self._scalar = self.channels * self.sections <= SCALAR_MAX
+
+    def __getstate__(self) -> dict[str, Any]:
+        # views are not copied or pickled: a copy gets views of its own arrays
+        return {k: v for k, v in self.__dict__.items() if k != "_flat"}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._views()
 
     @property
     def scalar(self) -> bool:
