@@ -7,6 +7,9 @@ sample whose forces clip restores the filter state from before that sample.
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -17,6 +20,7 @@ from dcsms_ros.core.filters import (
     SosFilter,
     feedback_tf,
     feedforward_tf,
+    flat,
     to_sos,
 )
 from dcsms_ros.core.geometry import drive_matrix
@@ -127,7 +131,8 @@ class Allocator:
     def clip(self, forces: ArrayLike) -> tuple[Array, int]:
         """Clip each force to +-limit; returns (clipped (n_act,), number of clipped actuators)."""
         f = np.asarray(forces, dtype=np.float64)
-        n = int(np.count_nonzero(np.abs(f) > self.limit))
+        lim = self.limit
+        n = sum(abs(v) > lim for v in f.tolist())  # a few floats: faster than numpy's calls
         return (np.clip(f, -self.limit, self.limit).astype(np.float64) if n else f.copy()), n
 
     def wrench(self, forces: ArrayLike) -> Array:
@@ -153,11 +158,25 @@ class _Loop:
         sos = [np.vstack([s] + [IDENTITY_SECTION[None, :]] * (n_sec - s.shape[0])) for s in sos]
         self._filter = SosFilter(np.array(sos) if sos else np.zeros((0, 1, 6)), len(sos))
         self._saved = self._filter.get_state()
+        self._axes_list: list[int] = self._axes.tolist()
+        self._views()
         self.fader = Fader(cfg.control.fade_time_s, cfg.plant.dt, on=enabled)
         self.fader.set_target(enabled)
         self.saturations = 0
         self.nonfinite = 0
         self.last_saturated = 0
+
+    def _views(self) -> None:
+        self._state_flat = flat(self._filter.arrays.state)
+        self._saved_flat = flat(self._saved)
+
+    def __getstate__(self) -> dict[str, Any]:
+        # views are not copied or pickled: a copy gets views of its own arrays
+        return {k: v for k, v in self.__dict__.items() if k not in ("_state_flat", "_saved_flat")}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._views()
 
     @property
     def enabled(self) -> bool:
@@ -204,16 +223,22 @@ class _Loop:
         counts it). Forces beyond the actuator limit are clipped (``saturations`` counts the
         samples) and that sample's filter update is undone.
         """
-        x = np.asarray(twist, dtype=np.float64)
+        # a few floats per sample: Python floats, not numpy calls (the same operations, so
+        # the same bits as the batch engine's compiled loop; test_engine_fast holds it)
+        x = np.asarray(twist, dtype=np.float64).tolist()
         fade = self.fader.step()
-        w = np.zeros(self.dof)
-        if not np.isfinite(x).all():
+        if not all(map(math.isfinite, x)):
             self.nonfinite += 1
             self.last_saturated = 0
-            return w
-        self._filter.get_state(self._saved)
-        y = self._filter.step(x[self._axes])
-        w[self._axes] = -fade * y
+            return np.zeros(self.dof)
+        self._saved_flat[:] = self._state_flat  # get_state(saved) without the numpy call
+        filt, axes = self._filter, self._axes_list
+        u = [x[a] for a in axes]
+        y = filt.step_floats(u) if filt.scalar else filt.step(np.array(u)).tolist()
+        wl = [0.0] * self.dof
+        for a, ya in zip(axes, y, strict=True):
+            wl[a] = -fade * ya
+        w = np.array(wl)
         self.last_saturated = 0
         if fade == 0.0:
             return w

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -74,11 +76,11 @@ class Decoupler:
             array. A body with any non-finite channel reads zero and its filter states hold.
         """
         x = np.asarray(raw, dtype=np.float64)
-        finite = np.isfinite(x)
-        if finite.all():
+        if all(map(math.isfinite, x.tolist())):  # a few channels: cheaper than numpy's calls
             v = self._ext.step(x)
             bad = None
         else:
+            finite = np.isfinite(x)
             # hold the bad channels' filter states so one NaN cannot poison them forever
             saved = self._ext.get_state()
             v = self._ext.step(np.where(finite, x, 0.0))

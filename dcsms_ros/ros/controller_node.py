@@ -20,6 +20,7 @@ ends at the deadline, else a timer). In lockstep the plant's own timeout covers 
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -161,7 +162,7 @@ class ControllerNode(Node, Stoppable):
             self._linked = True
             self.loop.prime(x)  # joining a running plant: no filter start-up transient
         w = self.loop.step(x) if self._linked else self._zero
-        if not np.isfinite(w).all():  # defensive: a NaN must never reach an actuator
+        if not all(map(math.isfinite, w.tolist())):  # a NaN must never reach an actuator
             self.nonfinite_out += 1
             w = self._zero
         self.answers.reply(ns, self.writer.encode(ns, w))

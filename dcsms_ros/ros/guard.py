@@ -34,25 +34,32 @@ class InputGuard:
         with np.errstate(invalid="ignore"):
             return ~(np.abs(x) <= self.limit)
 
+    def plausible(self, x: NDArray[np.float64]) -> bool:
+        """True if every element is finite and within the limit (not counted). The vectors
+        are a few floats per sample: a Python loop takes ~0.2 us where ``np.errstate`` and
+        three numpy calls took ~2.3 us."""
+        lim = self.limit
+        return all(abs(v) <= lim for v in x.tolist())  # NaN compares False
+
     def ok(self, x: NDArray[np.float64]) -> bool:
         """True if ``x`` is plausible; else count and log it and return False."""
-        if not self.bad(x).any():
+        if self.plausible(x):
             return True
         self._reject(x)
         return False
 
     def clean(self, x: NDArray[np.float64], fill: float) -> NDArray[np.float64]:
         """``x`` itself if plausible; else a copy with *every* element ``fill`` (counted)."""
-        if not self.bad(x).any():
+        if self.plausible(x):
             return x
         self._reject(x)
         return np.full_like(x, fill)
 
     def clean_each(self, x: NDArray[np.float64], fill: float) -> NDArray[np.float64]:
         """``x`` with each implausible element replaced by ``fill`` (counted once per call)."""
-        b = self.bad(x)
-        if not b.any():
+        if self.plausible(x):
             return x
+        b = self.bad(x)
         self._reject(x)
         return np.where(b, fill, x)
 

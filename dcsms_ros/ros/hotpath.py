@@ -5,9 +5,9 @@ enable service, timers, the ``/clock`` subscription of ``use_sim_time``, ...) on
 and dispatch each callback through a task: ~0.1-0.2 ms of Python per message, the dominant cost
 of a lockstep step (measured: ``bench/graph_bench.py``, docs/performance.md). Here a node's
 per-sample subscriptions are created in a callback group that no executor ever waits on
-(:class:`DetachedGroup`); a :class:`HotLoop` thread waits on a minimal wait set holding just
-those subscriptions and a stop guard condition (as :func:`rclpy.wait_for_message` does), takes
-every queued message with ``take_message`` and runs its handler under the node's lock.
+(:class:`DetachedGroup`); a :class:`~.hotloop.HotLoop` thread (:mod:`.hotloop`) waits on a
+minimal wait set holding just those subscriptions and a stop guard condition, takes every
+queued message with ``take_message`` and runs its handler under the node's lock.
 Services, parameters, timers and ``/clock`` stay with the normal executor, which wakes rarely.
 
 One process per node: each node's :class:`HotPath` gets its own loop. Composed (several nodes on
@@ -31,39 +31,18 @@ be created detached and emptied in batches by :meth:`HotPath.drain`.
 
 from __future__ import annotations
 
-import contextlib
-import os
-import sys
 import threading
-import traceback
 from collections.abc import Callable
-from contextlib import ExitStack
 from typing import Any
 
 from rclpy.callback_groups import CallbackGroup
-from rclpy.context import Context
-from rclpy.guard_condition import GuardCondition
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
-from rclpy.publisher import Publisher
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.localbus import Endpoint, Inbox, LocalBus
-from dcsms_ros.ros.intraprocess import BusPublisher
-
-#: Wake-up of the hot thread when nothing arrives (s): bounds the reaction to a stop request.
-IDLE_S = 0.1
-#: GIL switch interval (s) of a process with a hot thread. Python's default, 5 ms, lets an
-#: executor thread that holds the GIL keep the woken hot thread waiting for up to 5 ms (ten
-#: samples at 2 kHz): composed, recorded, 10 s of real time at SCHED_FIFO 50 were 52-61 % late
-#: with it and 0 % with 0.2 ms (2 runs each, docs/performance.md).
-GIL_SWITCH_S = 2e-4
-
-
-def enabled() -> bool:
-    """Whether the hot path is on (default) or turned off by ``DCSMS_HOT_PATH=0``."""
-    return os.environ.get("DCSMS_HOT_PATH", "1") not in ("0", "false", "no", "off")
+from dcsms_ros.ros.hotloop import GIL_SWITCH_S, IDLE_S, DrivenContext, HotLoop, enabled
+from dcsms_ros.ros.intraprocess import BusPublisher, DirectPublisher, SamplePublisher
 
 
 class DetachedGroup(CallbackGroup):
@@ -109,6 +88,8 @@ class HotPath:
             context, DrivenContext) else None)
         self._inboxes: dict[Subscription, Inbox] = {}
         self._served: list[tuple[Subscription, Callable[[Any], None]]] = []
+        #: per served subscription: handle, message type, raw, handler (read once, not per take)
+        self._takes: list[tuple[Any, Any, bool, Callable[[Any], None]]] = []
         self._asked: dict[Subscription, tuple[Any, str, Callable[[Any], None], QoSProfile]] = {}
         self._replaced: dict[Subscription, Subscription] = {}
 
@@ -163,11 +144,11 @@ class HotPath:
             return self.bus.inbox(topic)
         return self.bus.subscribe(topic, handler, self.lock, latest_only)
 
-    def publisher(self, msg_type: Any, topic: str, qos: QoSProfile) -> Publisher | BusPublisher:
+    def publisher(self, msg_type: Any, topic: str, qos: QoSProfile) -> SamplePublisher:
         """A per-sample publisher (serialized messages): composed, a :class:`BusPublisher`
-        (in-process delivery, DDS only for remote readers); else the node's plain one."""
+        (in-process delivery, DDS only for remote readers); else a :class:`DirectPublisher`."""
         pub = self.node.create_publisher(msg_type, topic, qos)
-        return pub if self.bus is None else BusPublisher(pub, self.bus)
+        return DirectPublisher(pub) if self.bus is None else BusPublisher(pub, self.bus)
 
     def served_from_dds(self, sub: Subscription) -> bool:
         """True if ``sub``'s messages come from DDS: no in-process writer of its topic, or
@@ -188,6 +169,7 @@ class HotPath:
                 self.subs = [(new if s is old else s, h) for s, h in self.subs]
         self._asked.clear()
         self._served = [(s, h) for s, h in self.subs if self.served_from_dds(s)]
+        self._takes = [(s.handle, s.msg_type, s.raw, h) for s, h in self._served]
         return [s for s, _ in self._served]
 
     def detached(self, msg_type: Any, topic: str, qos: QoSProfile,
@@ -216,12 +198,13 @@ class HotPath:
             if box is not None and not self.served_from_dds(sub):
                 return box.drain(handler, limit)
         n = 0
-        with sub.handle:
+        h, typ, raw = sub.handle, sub.msg_type, sub.raw
+        with h:
             while n < limit:
-                got = sub.handle.take_message(sub.msg_type, sub.raw)
+                got = h.take_message(typ, raw)
                 if got is None:
                     break
-                handler(got[0], int(got[1]["received_timestamp"]))
+                handler(got[0], got[1]["received_timestamp"])
                 n += 1
         return n
 
@@ -262,9 +245,7 @@ class HotPath:
         lock; returns how many."""
         n = 0
         with self.lock:
-            for sub, handler in self._served:
-                h = sub.handle
-                typ, raw = sub.msg_type, sub.raw
+            for h, typ, raw, handler in self._takes:
                 while True:
                     got = h.take_message(typ, raw)
                     if got is None:
@@ -282,155 +263,6 @@ class HotPath:
             return self._tick()
 
 
-class HotLoop:
-    """One thread serving the hot paths added to it, in the order they were added.
-
-    After each wake-up it passes over every path's subscriptions until a pass takes nothing
-    (a handler's publication may be in another served subscription at once), then runs the
-    ticks; it waits on a wait set of all the subscriptions and a guard condition for at most
-    the shortest time a tick asked for.
-    """
-
-    def __init__(self, context: Context, name: str) -> None:
-        self.context = context
-        self.name = name
-        self.paths: list[HotPath] = []
-        self._stop = False
-        self._thread: threading.Thread | None = None
-        self._guard: GuardCondition | None = None
-        self.error: BaseException | None = None
-        self.rt_warning: str | None = None
-        self.wakeups = 0
-        self._subs: list[Subscription] = []
-
-    def add(self, path: HotPath) -> None:
-        """Serve ``path`` too (before :meth:`start`)."""
-        if self._thread is not None:
-            raise RuntimeError(f"{self.name}: cannot add a hot path to a running loop")
-        self.paths.append(path)
-
-    def start(self, rt_priority: int = 0) -> None:
-        """Start the thread; ``rt_priority`` 1-99 puts it (only it) under SCHED_FIFO."""
-        if self._thread is not None or not self.paths:
-            return
-        self._subs = [s for p in self.paths for s in p.resolve()]  # before any thread runs
-        self._guard = GuardCondition(None, None, context=self.context)
-        self.context.on_shutdown(self._on_shutdown)
-        sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
-        self._thread = threading.Thread(target=self._run, args=(rt_priority,), name=self.name,
-                                        daemon=True)
-        self._thread.start()
-
-    def wake(self) -> None:
-        """Run the ticks now."""
-        if self._guard is not None:
-            self._guard.trigger()
-
-    def stop(self, timeout_s: float = 2.0) -> None:
-        """Ask the thread to end and wait for it (idempotent)."""
-        self._stop = True
-        if self._thread is not None:
-            if self._guard is not None:
-                with contextlib.suppress(Exception):
-                    self._guard.trigger()
-            self._thread.join(timeout_s)
-            self._thread = None
-        if self._guard is not None:
-            with contextlib.suppress(Exception):
-                self._guard.destroy()
-            self._guard = None
-
-    def _on_shutdown(self) -> None:
-        self._stop = True
-        if self._guard is not None:
-            with contextlib.suppress(Exception):  # the context may be gone already
-                self._guard.trigger()
-
-    def prioritize(self, rt_priority: int) -> str | None:
-        """Put the running thread (only it) under SCHED_FIFO ``rt_priority`` (1-99); returns a
-        warning when refused (no CAP_SYS_NICE), else None."""
-        thread = self._thread
-        if not rt_priority or thread is None or thread.native_id is None:
-            return None
-        try:
-            os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(rt_priority))
-        except (OSError, AttributeError) as exc:
-            self.rt_warning = (f"SCHED_FIFO priority {rt_priority} refused ({exc}); "
-                               f"default scheduler kept")
-        return self.rt_warning
-
-    def _run(self, rt_priority: int) -> None:
-        if rt_priority:
-            self.prioritize(rt_priority)
-        try:
-            self._loop()
-        except BaseException as exc:  # noqa: BLE001 - re-raised by the process's spin loop
-            if not self._stop and self.context.ok():
-                self.error = exc
-                self.paths[0].node.get_logger().error(
-                    f"{self.name} failed:\n{traceback.format_exc()}")
-
-    def _loop(self) -> None:
-        assert self._guard is not None
-        subs = self._subs
-        bus = self.context.bus if isinstance(self.context, DrivenContext) else None
-        if bus is not None:
-            bus.owner = threading.get_ident()
-        ws = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self.context.handle)
-        first_node = self.paths[0].node
-        with ExitStack() as stack:
-            for s in subs:
-                stack.enter_context(s.handle)
-            stack.enter_context(self._guard.handle)
-            guard = self._guard.handle
-            handles = [s.handle for s in subs]
-            timeout = IDLE_S
-            while not self._stop:
-                if bus is None or not bus.pending:  # else go on delivering at once
-                    ws.clear_entities()
-                    for h in handles:
-                        ws.add_subscription(h)
-                    ws.add_guard_condition(guard)
-                    ws.wait(max(int(timeout * 1e9), 0))
-                    self.wakeups += 1
-                    if self._stop:
-                        break
-                    if subs and not ws.get_ready_entities("subscription") and \
-                            subs[0] not in first_node.subscriptions:
-                        break  # the node was destroyed without stop(): nothing left to serve
-                while not self._stop:  # until a pass over every subscription takes nothing
-                    n = sum(p.serve() for p in self.paths)
-                    if bus is not None:
-                        n += bus.dispatch()
-                        if bus.pending:
-                            break  # a bounded round: ticks and the stop flag, then on
-                    if not n:
-                        break
-                timeout = IDLE_S
-                for p in self.paths:
-                    nxt = p.tick()
-                    if nxt is not None:
-                        timeout = min(timeout, max(nxt, 0.0))
-
-
-class DrivenContext(Context):
-    """An rclpy context whose nodes' hot paths one :class:`HotLoop`, :attr:`driver`, serves
-    (composed deployment). The host passes it to :func:`.context.ros_context` and to every
-    node it creates, then starts :attr:`driver` once the nodes exist and stops it before they
-    are destroyed.
-
-    Parameters
-    ----------
-    name : str
-        Name of the driver thread.
-    """
-
-    def __init__(self, name: str = "driver") -> None:
-        super().__init__()
-        self.driver = HotLoop(self, name)
-        #: In-process delivery between the nodes (None with the hot path off).
-        self.bus: LocalBus | None = LocalBus(wake=self.driver.wake) if enabled() else None
-
-
+# the loop's names too, for the modules that import them from here
 __all__ = ["GIL_SWITCH_S", "IDLE_S", "DetachedGroup", "DrivenContext", "HotLoop", "HotPath",
            "enabled"]

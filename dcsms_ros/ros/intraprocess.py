@@ -26,6 +26,7 @@ DDS only when DDS has a reader to give it to:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from rclpy.duration import Duration
@@ -35,7 +36,32 @@ from rclpy.qos import DurabilityPolicy
 from dcsms_ros.protocols.localbus import BusWriter, HeldHistory, LocalBus
 
 
-class BusPublisher:
+class _Wrapped:
+    """What a per-sample publisher shares with rclpy's: name, handle, matches, acks."""
+
+    pub: Publisher
+
+    @property
+    def topic_name(self) -> str:
+        """The fully resolved topic name."""
+        return str(self.pub.topic_name)
+
+    @property
+    def handle(self) -> Any:
+        """The DDS publisher's handle."""
+        return self.pub.handle
+
+    def get_subscription_count(self) -> int:
+        """The DDS writer's matched readers, this process's own included (as a plain
+        publisher's: the graph checks compare it with the graph's reader count)."""
+        return self.pub.get_subscription_count()
+
+    def wait_for_all_acked(self, timeout: Duration) -> bool:
+        """The DDS writer's wait for its reliable readers' acknowledgements."""
+        return bool(self.pub.wait_for_all_acked(timeout))
+
+
+class BusPublisher(_Wrapped):
     """A per-sample publisher of a composed process (see the module notes).
 
     Parameters
@@ -56,16 +82,6 @@ class BusPublisher:
         #: Messages also published on DDS.
         self.on_dds = 0
 
-    @property
-    def topic_name(self) -> str:
-        """The fully resolved topic name."""
-        return str(self.pub.topic_name)
-
-    @property
-    def handle(self) -> Any:
-        """The DDS publisher's handle."""
-        return self.pub.handle
-
     def remote(self) -> bool:
         """True while a reader outside this process is matched."""
         return self.bus.remote(self.writer.name, self.pub.get_subscription_count())
@@ -84,17 +100,27 @@ class BusPublisher:
         elif self.held is not None:
             self.held.hold(data)
 
-    def get_subscription_count(self) -> int:
-        """The DDS writer's matched readers, this process's own included (as a plain
-        publisher's: the graph checks compare it with the graph's reader count)."""
-        return self.pub.get_subscription_count()
 
-    def wait_for_all_acked(self, timeout: Duration) -> bool:
-        """The DDS writer's wait for its reliable readers' acknowledgements."""
-        return bool(self.pub.wait_for_all_acked(timeout))
+class DirectPublisher(_Wrapped):
+    """A per-sample publisher of one process per node: rclpy's publisher, whose
+    :meth:`publish` is its handle's ``publish_raw`` (rclpy's ``Publisher.publish`` enters the
+    handle and checks the type at every call: 1.7 us, the bound method 0.6 us). Serialized
+    messages only. The handle lives as long as the node: the hot loop ends before the node is
+    destroyed (:func:`.runtime.run`); a publication after that raises rclpy's error.
+
+    Parameters
+    ----------
+    pub : Publisher
+        The node's publisher of the topic.
+    """
+
+    def __init__(self, pub: Publisher) -> None:
+        self.pub = pub
+        self.publish: Callable[[bytes], None] = pub.handle.publish_raw
 
 
-#: What a node's per-sample publisher is: a :class:`BusPublisher` composed, else rclpy's own.
-SamplePublisher = Publisher | BusPublisher
+#: What a node's per-sample publisher is: a :class:`BusPublisher` composed, else a
+#: :class:`DirectPublisher` (or rclpy's own).
+SamplePublisher = Publisher | BusPublisher | DirectPublisher
 
-__all__ = ["BusPublisher", "SamplePublisher"]
+__all__ = ["BusPublisher", "DirectPublisher", "SamplePublisher"]

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import copy
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -207,3 +209,20 @@ def test_make_controller_rejects_unknown(cid):
     """Unknown ids and missing stages raise ConfigError."""
     with pytest.raises(ConfigError):
         make_controller(load_config(), cid)
+
+
+@pytest.mark.parametrize("how", ["deepcopy", "pickle"])
+@pytest.mark.parametrize("cid", ["fb_stage1", "ff_stage1"])
+def test_a_copied_loop_continues_exactly_and_alone(how, cid):
+    """A copy (the float step reads the filter state through views) steps on from the same
+    state to the same bits, and stepping it leaves the original's state alone."""
+    loop = make_controller(load_config(), cid, enabled=True)
+    rng = np.random.default_rng(5)
+    for v in rng.normal(scale=1e-3, size=50):
+        loop.step([v])
+    twin = copy.deepcopy(loop) if how == "deepcopy" else pickle.loads(pickle.dumps(loop))
+    state = loop.filter.get_state()
+    xs = rng.normal(scale=1e-3, size=40)
+    got = [twin.step([v])[0] for v in xs]
+    np.testing.assert_array_equal(loop.filter.get_state(), state)  # the original untouched
+    assert got == [loop.step([v])[0] for v in xs]

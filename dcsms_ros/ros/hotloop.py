@@ -1,0 +1,213 @@
+"""The hot loop: one thread serving the per-sample subscriptions of hot paths from a minimal
+wait set (:mod:`.hotpath` declares them), and the composed process's context that owns one.
+
+After each wake-up the loop takes every queued message of the paths' subscriptions with
+``take_message`` and runs its handler under the path's lock, then the paths' ticks; it waits
+on a wait set of just those subscriptions and a stop guard condition (as
+:func:`rclpy.wait_for_message` does), for at most the shortest time a tick asked for. Only
+this thread may run under SCHED_FIFO (:meth:`HotLoop.prioritize`), and a process with one
+lowers Python's GIL switch interval (:data:`GIL_SWITCH_S`). Composed, the
+:class:`DrivenContext`'s :attr:`~DrivenContext.driver` loop serves the paths of every node of
+the context and dispatches the in-process bus (:mod:`dcsms_ros.protocols.localbus`) in
+publication order until nothing is left.
+
+``DCSMS_HOT_PATH=0`` in the environment turns the hot path off (:func:`enabled`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import threading
+import traceback
+from contextlib import ExitStack
+from typing import Protocol
+
+from rclpy.context import Context
+from rclpy.guard_condition import GuardCondition
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.node import Node
+from rclpy.subscription import Subscription
+
+from dcsms_ros.protocols.localbus import LocalBus
+
+#: Wake-up of the hot thread when nothing arrives (s): bounds the reaction to a stop request.
+IDLE_S = 0.1
+#: GIL switch interval (s) of a process with a hot thread. Python's default, 5 ms, lets an
+#: executor thread that holds the GIL keep the woken hot thread waiting for up to 5 ms (ten
+#: samples at 2 kHz): composed, recorded, 10 s of real time at SCHED_FIFO 50 were 52-61 % late
+#: with it and 0 % with 0.2 ms (2 runs each, docs/performance.md).
+GIL_SWITCH_S = 2e-4
+
+
+def enabled() -> bool:
+    """Whether the hot path is on (default) or turned off by ``DCSMS_HOT_PATH=0``."""
+    return os.environ.get("DCSMS_HOT_PATH", "1") not in ("0", "false", "no", "off")
+
+
+class Served(Protocol):
+    """What a :class:`HotLoop` serves (a :class:`~.hotpath.HotPath`)."""
+
+    node: Node
+
+    def resolve(self) -> list[Subscription]: ...
+
+    def serve(self) -> int: ...
+
+    def tick(self) -> float | None: ...
+
+
+class HotLoop:
+    """One thread serving the hot paths added to it, in the order they were added.
+
+    After each wake-up it empties every path's subscriptions (composed, in passes with the
+    bus until a pass takes nothing: a handler's publication is another node's input), then the
+    ticks; it waits on a wait set of all the subscriptions and a guard condition for at most
+    the shortest time a tick asked for.
+    """
+
+    def __init__(self, context: Context, name: str) -> None:
+        self.context = context
+        self.name = name
+        self.paths: list[Served] = []
+        self._stop = False
+        self._thread: threading.Thread | None = None
+        self._guard: GuardCondition | None = None
+        self.error: BaseException | None = None
+        self.rt_warning: str | None = None
+        self.wakeups = 0
+        self._subs: list[Subscription] = []
+
+    def add(self, path: Served) -> None:
+        """Serve ``path`` too (before :meth:`start`)."""
+        if self._thread is not None:
+            raise RuntimeError(f"{self.name}: cannot add a hot path to a running loop")
+        self.paths.append(path)
+
+    def start(self, rt_priority: int = 0) -> None:
+        """Start the thread; ``rt_priority`` 1-99 puts it (only it) under SCHED_FIFO."""
+        if self._thread is not None or not self.paths:
+            return
+        self._subs = [s for p in self.paths for s in p.resolve()]  # before any thread runs
+        self._guard = GuardCondition(None, None, context=self.context)
+        self.context.on_shutdown(self._on_shutdown)
+        sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
+        self._thread = threading.Thread(target=self._run, args=(rt_priority,), name=self.name,
+                                        daemon=True)
+        self._thread.start()
+
+    def wake(self) -> None:
+        """Run the ticks now."""
+        if self._guard is not None:
+            self._guard.trigger()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Ask the thread to end and wait for it (idempotent)."""
+        self._stop = True
+        if self._thread is not None:
+            if self._guard is not None:
+                with contextlib.suppress(Exception):
+                    self._guard.trigger()
+            self._thread.join(timeout_s)
+            self._thread = None
+        if self._guard is not None:
+            with contextlib.suppress(Exception):
+                self._guard.destroy()
+            self._guard = None
+
+    def _on_shutdown(self) -> None:
+        self._stop = True
+        if self._guard is not None:
+            with contextlib.suppress(Exception):  # the context may be gone already
+                self._guard.trigger()
+
+    def prioritize(self, rt_priority: int) -> str | None:
+        """Put the running thread (only it) under SCHED_FIFO ``rt_priority`` (1-99); returns a
+        warning when refused (no CAP_SYS_NICE), else None."""
+        thread = self._thread
+        if not rt_priority or thread is None or thread.native_id is None:
+            return None
+        try:
+            os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(rt_priority))
+        except (OSError, AttributeError) as exc:
+            self.rt_warning = (f"SCHED_FIFO priority {rt_priority} refused ({exc}); "
+                               f"default scheduler kept")
+        return self.rt_warning
+
+    def _run(self, rt_priority: int) -> None:
+        if rt_priority:
+            self.prioritize(rt_priority)
+        try:
+            self._loop()
+        except BaseException as exc:  # noqa: BLE001 - re-raised by the process's spin loop
+            if not self._stop and self.context.ok():
+                self.error = exc
+                self.paths[0].node.get_logger().error(
+                    f"{self.name} failed:\n{traceback.format_exc()}")
+
+    def _loop(self) -> None:
+        assert self._guard is not None
+        subs = self._subs
+        bus = self.context.bus if isinstance(self.context, DrivenContext) else None
+        if bus is not None:
+            bus.owner = threading.get_ident()
+        ws = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self.context.handle)
+        first_node = self.paths[0].node
+        paths = self.paths
+        with ExitStack() as stack:
+            for s in subs:
+                stack.enter_context(s.handle)
+            stack.enter_context(self._guard.handle)
+            guard = self._guard.handle
+            handles = [s.handle for s in subs]
+            timeout = IDLE_S
+            while not self._stop:
+                if bus is None or not bus.pending:  # else go on delivering at once
+                    ws.clear_entities()
+                    for h in handles:
+                        ws.add_subscription(h)
+                    ws.add_guard_condition(guard)
+                    ws.wait(max(int(timeout * 1e9), 0))
+                    self.wakeups += 1
+                    if self._stop:
+                        break
+                    if subs and not ws.get_ready_entities("subscription") and \
+                            subs[0] not in first_node.subscriptions:
+                        break  # the node was destroyed without stop(): nothing left to serve
+                if bus is None:
+                    # one pass (each subscription emptied): a message a handler sends to a
+                    # reader of this process makes the next wait return at once
+                    for p in paths:
+                        p.serve()
+                while bus is not None and not self._stop:  # until a pass takes nothing
+                    n = sum(p.serve() for p in paths) + bus.dispatch()
+                    if bus.pending or not n:
+                        break  # pending: a bounded round (ticks and the stop flag), then on
+                timeout = IDLE_S
+                for p in paths:
+                    nxt = p.tick()
+                    if nxt is not None:
+                        timeout = min(timeout, max(nxt, 0.0))
+
+
+class DrivenContext(Context):
+    """An rclpy context whose nodes' hot paths one :class:`HotLoop`, :attr:`driver`, serves
+    (composed deployment). The host passes it to :func:`.context.ros_context` and to every
+    node it creates, then starts :attr:`driver` once the nodes exist and stops it before they
+    are destroyed.
+
+    Parameters
+    ----------
+    name : str
+        Name of the driver thread.
+    """
+
+    def __init__(self, name: str = "driver") -> None:
+        super().__init__()
+        self.driver = HotLoop(self, name)
+        #: In-process delivery between the nodes (None with the hot path off).
+        self.bus: LocalBus | None = LocalBus(wake=self.driver.wake) if enabled() else None
+
+
+__all__ = ["GIL_SWITCH_S", "IDLE_S", "DrivenContext", "HotLoop", "Served", "enabled"]
