@@ -21,13 +21,7 @@ _NODE_NAMES_OK = {"main", "__all__"}
 _BY_NAME = "importlib.import_module"
 #: Rule breaks in nodes/ still to be removed, each with why it is still there: a new break
 #: fails the test, and so does an entry here that no longer breaks (take it out).
-NODE_EXCEPTIONS: dict[str, str] = {
-    "dcsms_ros.nodes.plant_simulator:locks":
-        "its three `with self._lock` blocks (tick timer, hold_at_s, final reports) are "
-        "redundant since the host runs every executor callback under the hot-path lock "
-        "(ros/serialized.py, reentrant); the file belongs to the hot-path work of this round "
-        "and loses them at the merge",
-}
+NODE_EXCEPTIONS: dict[str, str] = {}
 #: Names that are locks, or calls that take, free or test one (the host serializes a node's
 #: callbacks with its hot loop: ros/serialized.py).
 _LOCK_CALLS = ("acquire", "release", "locked")

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import shutil
 import struct
+import threading
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -160,6 +161,9 @@ class McapBagWriter:
         self._chunk_indexes: list[bytes] = []
         self._t0, self._t1 = 2**63 - 1, 0
         self._closed = False
+        # a composed recorder writes from the executor (topics of other processes) and from
+        # the driver thread (in-process delivery): every public call holds this lock
+        self._lock = threading.RLock()
         try:
             self._inner.mkdir(parents=True)
             self._f = self.file.open("xb")
@@ -177,6 +181,10 @@ class McapBagWriter:
     def add_topic(self, topic: str, msgtype: str, qos_yaml: str = "") -> None:
         """Register ``topic`` of ``msgtype`` (``pkg/msg/Name``); ``qos_yaml``: its offered QoS
         profiles as rosbag2 metadata YAML (e.g. :data:`.bagio.LATCHED_QOS`)."""
+        with self._lock:
+            self._add_topic(topic, msgtype, qos_yaml)
+
+    def _add_topic(self, topic: str, msgtype: str, qos_yaml: str) -> None:
         if topic in self.topics:
             raise BagError(f"{self.path}: topic {topic} added twice")
         if msgtype not in self._schemas:
@@ -201,7 +209,19 @@ class McapBagWriter:
 
     # -- messages ------------------------------------------------------------------------
     def write(self, topic: str, t_ns: int, data: bytes) -> None:
-        """One message at log (and publish) time ``t_ns``."""
+        """One message at log (and publish) time ``t_ns``.
+
+        Raises
+        ------
+        BagError
+            After :meth:`close` (a write in another thread ends first).
+        """
+        with self._lock:
+            if self._closed:
+                raise BagError(f"{self.path}: written after close")
+            self._write(topic, t_ns, data)
+
+    def _write(self, topic: str, t_ns: int, data: bytes) -> None:
         # a recorder's per-message path (~2 us): one struct pack, index entries as Python ints
         # (arrays only once per chunk), no numpy call per message
         t = self._topic(topic)
@@ -242,6 +262,10 @@ class McapBagWriter:
 
     def write_encoded(self, t_ns: np.ndarray, tpl: RowTemplate, buf: np.ndarray) -> None:
         """K samples already encoded by ``tpl`` (``buf`` (K, width) uint8, C-contiguous)."""
+        with self._lock:
+            self._write_encoded(t_ns, tpl, buf)
+
+    def _write_encoded(self, t_ns: np.ndarray, tpl: RowTemplate, buf: np.ndarray) -> None:
         t = np.ascontiguousarray(t_ns, dtype="<u8")
         k, w = buf.shape
         per_chunk = max(1, self.chunk_bytes // w)
@@ -337,6 +361,10 @@ class McapBagWriter:
 
     def close(self) -> Path:
         """Finish the file (summary, footer) and ``metadata.yaml``; move the bag into place."""
+        with self._lock:
+            return self._close()
+
+    def _close(self) -> Path:
         if self._closed:
             return self.path
         try:
@@ -388,12 +416,13 @@ class McapBagWriter:
 
     def abort(self) -> None:
         """Give up: close the file and remove the staging directory."""
-        self._closed = True
-        try:
-            self._f.close()
-        except OSError:
-            pass
-        shutil.rmtree(self.staging, ignore_errors=True)
+        with self._lock:
+            self._closed = True
+            try:
+                self._f.close()
+            except OSError:
+                pass
+            shutil.rmtree(self.staging, ignore_errors=True)
 
 
 __all__ = ["CHUNK_BYTES", "MESSAGE_HEADER", "McapBagWriter", "RowTemplate"]

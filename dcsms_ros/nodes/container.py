@@ -47,7 +47,8 @@ from dcsms_ros.ros.hotpath import DrivenContext
 from dcsms_ros.ros.runtime import close_nodes, config_error, quiesce, report_hold
 from dcsms_ros.ros.serialized import Serialized, serialize
 
-#: Executor threads: services and parameters of six nodes, the mode switch's calls.
+#: Executor threads: services, timers and parameters of six nodes (a parameter set runs the
+#: stability guard, 6-8 ms, outside the hot locks; the mode switch awaits its calls as tasks).
 EXECUTOR_THREADS = 3
 
 

@@ -47,7 +47,7 @@ from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.guard import FORCE_LIMIT_FACTOR, InputGuard
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
-from dcsms_ros.ros.params import SELECTORS, NodeConfig, declare_schedule
+from dcsms_ros.ros.params import SELECTORS, NodeConfig, add_post_set, declare_schedule
 from dcsms_ros.ros.runtime import Stoppable, main_for
 
 #: Barrier participant of the trip checkpoints (mode_switch's verdicts).
@@ -86,7 +86,6 @@ class PlantSimulatorNode(Node, Stoppable):
         # forces are taken by the hot loop (hotpath.py); the executor keeps handshake,
         # lockstep timeouts/retransmissions and reports, under the same lock
         self.hot = HotPath(self)
-        self._lock = self.hot.lock
         self.io = plant_io.PlantIO(self, self.sim, gate)
         # real time: the forces are held values, so the hot thread does not wake for each one:
         # it drains them at every sample (arrival times from the DDS reception stamps)
@@ -105,13 +104,13 @@ class PlantSimulatorNode(Node, Stoppable):
         if gate:
             self.hot.subscribe(Header, topics.LOCAL.trip_checked, self._on_checked,
                                qos.stream_sub(True), raw=True)
-        self.add_post_set_parameters_callback(self._on_local)
+        add_post_set(self, self._on_local)  # under the hot loop's lock, like every callback
         self.started = False
         self._waiting_hold = False
         # the executor's timer runs the handshake; then the hot loop steps (real time) or
         # pumps and watches the barrier's deadlines (lockstep), unless the hot path is off
         tick = 1.0 / self.rate if not self.lockstep and not self.hot.on else 0.005
-        self._tick_timer = steady_timer(self, tick, self._tick_locked)
+        self._tick_timer = steady_timer(self, tick, self._tick)
         self.hot.set_tick(self._hot_tick)
         steady_timer(self, opts.status_period_s, self.io.report)
         self.get_logger().info(
@@ -133,19 +132,14 @@ class PlantSimulatorNode(Node, Stoppable):
     def _on_local(self, params: list[Parameter]) -> None:
         for p in params:
             if p.name == "hold_at_s":
-                with self._lock:
-                    self._set_hold(float(p.value))
-                    self._waiting_hold = False
+                self._set_hold(float(p.value))
+                self._waiting_hold = False
                 if self.hot.on:
                     self.hot.wake()  # the hot loop pumps on
                 else:
-                    self._tick_locked()
+                    self._tick()
 
     # -- stepping ----------------------------------------------------------------------------
-    def _tick_locked(self) -> None:
-        with self._lock:
-            self._tick()
-
     def _tick(self) -> None:
         now = time.monotonic()
         if self.finished:
@@ -285,9 +279,8 @@ class PlantSimulatorNode(Node, Stoppable):
     def final_reports(self) -> list[SamplePublisher]:
         """Publish what is held back and the final counters; returns the publishers whose
         readers should acknowledge before the node goes (a clean exit loses nothing)."""
-        with self._lock:
-            self.io.flush_applied()
-            self.io.report()
+        self.io.flush_applied()  # the host holds the hot loop's lock (runtime.close_nodes)
+        self.io.report()
         return self.io.closing()
 
 

@@ -226,7 +226,10 @@ class Recorder(Node):
         def cb(data: bytes, seq: int, t_ns: int) -> None:
             if not self._open:  # published after the bag was closed
                 return
-            write(topic, t_ns, data)
+            try:
+                write(topic, t_ns, data)
+            except BagError:  # closed between the check and the write, by the executor
+                return
             add(seq, read_stamp(data) if stamped else None, t_ns)
 
         return cb

@@ -237,6 +237,18 @@ class NodeConfig:
             self.on_change(self.cfg, changed)
 
 
+def add_post_set(node: Node, fn: Callable[[list[Parameter]], None]) -> None:
+    """Register ``fn`` as a post-set parameters callback of ``node`` that runs under the node's
+    hot-path lock (:func:`.serialized.hot_lock`), one at a time with its hot loop, like every
+    other callback of the node: node code never locks."""
+    def serialized(params: list[Parameter]) -> None:
+        lock = hot_lock(node)
+        with lock if lock is not None else nullcontext():
+            fn(params)
+
+    node.add_post_set_parameters_callback(serialized)
+
+
 def declare_local(node: Node, name: str, default: Any, description: str,
                   read_only: bool = True, lo: float | None = None,
                   hi: float | None = None) -> Any:

@@ -26,6 +26,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Sequence
+from contextlib import nullcontext
 from typing import Any
 
 from rclpy.duration import Duration
@@ -35,7 +36,7 @@ from rclpy.node import Node
 from dcsms_ros import graph
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
-from dcsms_ros.ros.serialized import Serialized, serialize
+from dcsms_ros.ros.serialized import Serialized, hot_lock, serialize
 
 #: Exit status of a configuration error (the CLI's convention).
 EXIT_CONFIG = 2
@@ -161,7 +162,9 @@ def close_nodes(nodes: Sequence[Node]) -> None:
     for node in nodes:
         final = getattr(node, "final_reports", None)
         if final is not None:
-            pubs += final()
+            lock = hot_lock(node)  # a hot loop still draining shares the node's state
+            with lock if lock is not None else nullcontext():
+                pubs += final()
     finished = any(getattr(node, "finished", False) for node in nodes)
     wait_acked(pubs, ACK_WAIT_FINISHED_S if finished else ACK_WAIT_S)
     for node in nodes:
