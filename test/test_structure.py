@@ -276,3 +276,19 @@ def test_decisions_do_not_read_diagnostics() -> None:
                and ast.unparse(node.func).endswith("create_subscription")
                and node.args and ast.unparse(node.args[0]) == "DiagnosticArray"]
     assert readers == ["dcsms_ros.cli.monitor"], readers
+
+
+def test_the_host_asks_nodes_by_contract_not_by_getattr() -> None:
+    """The host (``ros/``, the composed container) learns a node's hot path, end and final
+    reports from :class:`dcsms_ros.ros.hosted.Hosted`, never by ``getattr(node, ...)`` (the
+    rule reader is checked on a sample line)."""
+    def node_getattrs(text: str) -> list[str]:
+        return [ast.unparse(n) for n in ast.walk(ast.parse(text))
+                if isinstance(n, ast.Call) and ast.unparse(n.func) == "getattr"
+                and n.args and "node" in ast.unparse(n.args[0]).lower()]
+
+    assert node_getattrs("x = getattr(node, 'hot', None)")
+    found = {module: calls for module, path in MODULES.items()
+             if module.startswith(("dcsms_ros.ros.", "dcsms_ros.nodes.container"))
+             and (calls := node_getattrs(path.read_text()))}
+    assert not found, found

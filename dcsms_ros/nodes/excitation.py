@@ -37,6 +37,7 @@ from dcsms_ros.core.supervisor import TRIPPED_STATES
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
 from dcsms_ros.ros.msgs import node_status, to_stamp
@@ -47,11 +48,13 @@ from dcsms_ros.ros.params import (
     declare_observed,
     declare_schedule,
 )
-from dcsms_ros.ros.runtime import Stoppable, main_for
+from dcsms_ros.ros.runtime import main_for
 
 
-class ExcitationNode(Node, Stoppable):
+class ExcitationNode(Node, Hosted):
     """ROS adapter around :class:`~dcsms_ros.core.excitation.Excitation`."""
+
+    hot: HotPath  # every instance has one (Hosted declares it optional)
 
     def __init__(self, node_name: str = topics.EXCITATION_ID, **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)

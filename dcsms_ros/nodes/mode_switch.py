@@ -50,6 +50,7 @@ from dcsms_ros.nodes.mode_switch_clients import ControllerClients
 from dcsms_ros.nodes.mode_switch_supervisor import TableWatch
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.msgs import node_status, sample_ns, to_stamp
 from dcsms_ros.ros.params import (
@@ -63,8 +64,10 @@ from dcsms_ros.ros.runtime import main_for
 from dcsms_ros.ros.stability import StabilityGuard
 
 
-class ModeSwitchNode(Node):
+class ModeSwitchNode(Node, Hosted):
     """Supervisor: mode services, trip, stability guard, controller reconciliation."""
+
+    hot: HotPath  # every instance has one (Hosted declares it optional)
 
     def __init__(self, node_name: str = "mode_switch", **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)

@@ -45,17 +45,20 @@ from dcsms_ros.protocols.pacer import HeldInputs, Pacer
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.guard import FORCE_LIMIT_FACTOR, InputGuard
+from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
 from dcsms_ros.ros.params import SELECTORS, NodeConfig, add_post_set, declare_schedule
-from dcsms_ros.ros.runtime import Stoppable, main_for
+from dcsms_ros.ros.runtime import main_for
 
 #: Barrier participant of the trip checkpoints (mode_switch's verdicts).
 TRIP = "trip"
 
 
-class PlantSimulatorNode(Node, Stoppable):
+class PlantSimulatorNode(Node, Hosted):
     """ROS adapter around :class:`~dcsms_ros.core.simulator.PlantSimulator`."""
+
+    hot: HotPath  # every instance has one (Hosted declares it optional)
 
     def __init__(self, node_name: str = "plant_simulator", **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)

@@ -26,6 +26,7 @@ from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
+from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
 from dcsms_ros.ros.msgs import node_status, to_stamp
@@ -39,8 +40,10 @@ from dcsms_ros.ros.params import (
 from dcsms_ros.ros.runtime import main_for
 
 
-class SensorDecouplingNode(Node):
+class SensorDecouplingNode(Node, Hosted):
     """ROS adapter around :class:`~dcsms_ros.core.decoupling.Decoupler`."""
+
+    hot: HotPath  # every instance has one (Hosted declares it optional)
 
     def __init__(self, node_name: str = "sensor_decoupling", **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)

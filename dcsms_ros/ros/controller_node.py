@@ -44,6 +44,7 @@ from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.connectivity import has_reader, writer_matched
 from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
+from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
 from dcsms_ros.ros.msgs import node_status, to_stamp
@@ -54,12 +55,13 @@ from dcsms_ros.ros.params import (
     declare_observed,
     declare_schedule,
 )
-from dcsms_ros.ros.runtime import Stoppable
 from dcsms_ros.ros.stability import StabilityGuard
 
 
-class ControllerNode(Node, Stoppable):
+class ControllerNode(Node, Hosted):
     """Base of :class:`FeedbackControllerNode` and :class:`FeedforwardControllerNode`."""
+
+    hot: HotPath  # every instance has one (Hosted declares it optional)
 
     def setup(self, cid: str, select: Callable[[str], bool], body: str) -> None:
         """Declare parameters, build the core loop and the ROS interfaces.

@@ -36,6 +36,7 @@ from rclpy.node import Node
 from dcsms_ros import graph
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
+from dcsms_ros.ros.hosted import Hosted, hot_path
 from dcsms_ros.ros.serialized import Serialized, hot_lock, serialize
 
 #: Exit status of a configuration error (the CLI's convention).
@@ -69,16 +70,6 @@ def rt_priority_from_env() -> tuple[int, str | None]:
     return prio, None
 
 
-class Stoppable:
-    """Mixin for nodes that can end their own process (e.g. the plant after ``duration_s``)."""
-
-    finished: bool = False
-
-    def finish(self) -> None:
-        """Ask the spin loop to return after the current callback."""
-        self.finished = True
-
-
 #: Longest total wait (s) of a process's close for its reliable readers' acknowledgements.
 ACK_WAIT_S = 3.0
 #: The same after a run that finished by itself (the plant's duration): a recorder on a loaded
@@ -101,7 +92,7 @@ def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
     handler raises here, as a failing callback would."""
     serial = serialize(node)  # before the executor can run any of its callbacks
     executor.add_node(node)
-    hot = getattr(node, "hot", None)
+    hot = hot_path(node)
     if hot is not None:
         hot.start()
         warning = hot.loop.prioritize(rt_priority) if hot.loop is not None else None
@@ -111,7 +102,7 @@ def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
     def done() -> bool:
         if hot is not None and hot.error is not None:
             raise hot.error
-        return stop() or getattr(node, "finished", False)
+        return stop() or (isinstance(node, Hosted) and node.finished)
 
     try:
         spin_until(executor, done)
@@ -160,12 +151,11 @@ def close_nodes(nodes: Sequence[Node]) -> None:
     """
     pubs: list[Any] = []
     for node in nodes:
-        final = getattr(node, "final_reports", None)
-        if final is not None:
+        if isinstance(node, Hosted):
             lock = hot_lock(node)  # a hot loop still draining shares the node's state
             with lock if lock is not None else nullcontext():
-                pubs += final()
-    finished = any(getattr(node, "finished", False) for node in nodes)
+                pubs += node.final_reports()
+    finished = any(isinstance(node, Hosted) and node.finished for node in nodes)
     wait_acked(pubs, ACK_WAIT_FINISHED_S if finished else ACK_WAIT_S)
     for node in nodes:
         node.destroy_node()
@@ -205,7 +195,7 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None) -> int:
             pass
         finally:
             if node is not None:
-                hot = getattr(node, "hot", None)
+                hot = hot_path(node)
                 if hot is not None:
                     hot.stop()  # the hot thread ends before the node's entities go
                 close_nodes([node])

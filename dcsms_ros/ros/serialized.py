@@ -30,7 +30,8 @@ from typing import Any
 
 from rclpy.node import Node
 
-from dcsms_ros.ros.hotpath import DetachedGroup, HotPath
+from dcsms_ros.ros.hosted import hot_path
+from dcsms_ros.ros.hotpath import DetachedGroup
 
 #: Packages of the services every rclpy node creates for itself (parameters, type description).
 BUILTIN_SERVICES = ("rcl_interfaces.", "type_description_interfaces.")
@@ -38,8 +39,8 @@ BUILTIN_SERVICES = ("rcl_interfaces.", "type_description_interfaces.")
 
 def hot_lock(node: Node) -> Any | None:
     """The lock of ``node``'s hot path, or None for a node without one (the recorder)."""
-    hot = getattr(node, "hot", None)
-    return hot.lock if isinstance(hot, HotPath) else None
+    hot = hot_path(node)
+    return hot.lock if hot is not None else None
 
 
 @types.coroutine
