@@ -15,6 +15,7 @@ from std_msgs.msg import Int64
 from std_srvs.srv import Trigger
 
 from dcsms_ros.ros import qos
+from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.serialized import Serialized, serialize
 from dcsms_ros.ros.services import pause
@@ -23,7 +24,7 @@ from dcsms_ros.ros.services import pause
 BUSY_S = 0.002
 
 
-class Probe(Node):
+class Probe(Node, Hosted):
     """A node whose hot handler, timer, service and async service count how many of them run
     at once (no lock of its own)."""
 
