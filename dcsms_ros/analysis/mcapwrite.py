@@ -19,7 +19,6 @@ time order (rosbags merges chunks assuming it).
 from __future__ import annotations
 
 import shutil
-import struct
 import threading
 import zlib
 from collections.abc import Sequence
@@ -32,85 +31,27 @@ import yaml
 
 from dcsms_ros import __version__
 from dcsms_ros.analysis import staging
+from dcsms_ros.analysis.mcaprecords import (
+    MAGIC,
+    MESSAGE,
+    MESSAGE_HEADER,
+    OPCODES,
+    U16,
+    U32,
+    U64,
+    RowTemplate,
+    Topic,
+    map_field,
+    record,
+    string_field,
+)
 from dcsms_ros.cdr import typestore
 from dcsms_ros.errors import BagError
 
-MAGIC = b"\x89MCAP0\r\n"
-_OP = {"header": 0x01, "footer": 0x02, "schema": 0x03, "channel": 0x04, "message": 0x05,
-       "chunk": 0x06, "message_index": 0x07, "chunk_index": 0x08, "statistics": 0x0B,
-       "metadata": 0x0C, "metadata_index": 0x0D, "summary_offset": 0x0E, "data_end": 0x0F}
-#: Message record header: opcode, length, channel id, sequence, log time, publish time.
-MESSAGE_HEADER = 31
 #: Uncompressed bytes per chunk (the reader holds one chunk at a time).
 CHUNK_BYTES = 4 << 20
 #: zstd level of the chunks (1: fast, ~4x smaller on the graph's streams).
 ZSTD_LEVEL = 1
-_U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
-#: A message record's header: opcode, record length, channel, sequence, log and publish time.
-_MESSAGE = struct.Struct("<BQHIQQ")
-
-
-def _string(text: str) -> bytes:
-    raw = text.encode()
-    return _U32.pack(len(raw)) + raw
-
-
-def _record(op: str, body: bytes) -> bytes:
-    return bytes([_OP[op]]) + _U64.pack(len(body)) + body
-
-
-def _map(pairs: Sequence[tuple[bytes, bytes]]) -> bytes:
-    body = b"".join(k + v for k, v in pairs)
-    return _U32.pack(len(body)) + body
-
-
-@dataclass
-class _Topic:
-    topic: str
-    msgtype: str
-    channel: int
-    qos_yaml: str
-    count: int = 0
-
-
-class RowTemplate:
-    """One sample's message records of several topics side by side: the bytes that do not
-    change from sample to sample, and where the times go.
-
-    Attributes
-    ----------
-    width : int
-        Bytes per sample.
-    offsets : list of int
-        Start of each topic's record in a row (its CDR starts :data:`MESSAGE_HEADER` later).
-    """
-
-    def __init__(self, topics: Sequence[_Topic], templates: Sequence[np.ndarray]) -> None:
-        self.topics = list(topics)
-        parts, self.offsets = [], []
-        at = 0
-        for tp, cdr in zip(self.topics, templates, strict=True):
-            n = int(np.asarray(cdr).size)
-            parts.append(np.frombuffer(bytes([_OP["message"]]) + _U64.pack(22 + n)
-                                       + _U16.pack(tp.channel) + _U32.pack(0) + bytes(16),
-                                       np.uint8))
-            parts.append(np.asarray(cdr, np.uint8))
-            self.offsets.append(at)
-            at += MESSAGE_HEADER + n
-        self.row = np.concatenate(parts)
-        self.width = at
-
-    def encode(self, t_ns: np.ndarray) -> np.ndarray:
-        """(K, width) rows: the template with the log and publish times of ``t_ns`` (K,);
-        the caller writes each message's own fields at ``offsets[j] + MESSAGE_HEADER + ...``."""
-        t = np.ascontiguousarray(t_ns, dtype="<u8")
-        k = t.size
-        # bytearray repetition is one memcpy per row: ~10x a numpy broadcast of uint8 rows
-        buf = np.frombuffer(bytearray(self.row.tobytes()) * k, np.uint8).reshape(k, self.width)
-        tb = np.repeat(t[:, None], 2, axis=1).view(np.uint8)  # log and publish time
-        for o in self.offsets:
-            buf[:, o + 15:o + 31] = tb
-        return buf
 
 
 @dataclass
@@ -155,7 +96,7 @@ class McapBagWriter:
             import zstandard  # noqa: PLC0415 - optional: only for compressed chunks
 
             self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
-        self.topics: dict[str, _Topic] = {}
+        self.topics: dict[str, Topic] = {}
         self._schemas: dict[str, tuple[int, bytes]] = {}
         self._chunk = _Chunk()
         self._chunk_indexes: list[bytes] = []
@@ -167,7 +108,7 @@ class McapBagWriter:
         try:
             self._inner.mkdir(parents=True)
             self._f = self.file.open("xb")
-            self._f.write(MAGIC + _record("header", _string("ros2") + _string(
+            self._f.write(MAGIC + record("header", string_field("ros2") + string_field(
                 f"dcsms_ros-{__version__}")))
         except OSError as exc:
             shutil.rmtree(self.staging, ignore_errors=True)
@@ -193,19 +134,19 @@ class McapBagWriter:
             except Exception as exc:  # noqa: BLE001 - rosbags raises several types
                 raise BagError(f"{self.path}: cannot add {topic} ({msgtype}): {exc}") from None
             sid = len(self._schemas) + 1
-            rec = _record("schema", _U16.pack(sid) + _string(msgtype) + _string("ros2msg")
-                          + _string(text))
+            rec = record("schema", U16.pack(sid) + string_field(msgtype) + string_field("ros2msg")
+                          + string_field(text))
             self._schemas[msgtype] = (sid, rec)
             self._f.write(rec)
         cid = len(self.topics) + 1
-        t = _Topic(topic, msgtype, cid, qos_yaml)
+        t = Topic(topic, msgtype, cid, qos_yaml)
         self.topics[topic] = t
         self._f.write(self._channel_record(t))
 
-    def _channel_record(self, t: _Topic) -> bytes:
-        meta = _map([(_string("offered_qos_profiles"), _string(t.qos_yaml))])
-        return _record("channel", _U16.pack(t.channel) + _U16.pack(self._schemas[t.msgtype][0])
-                       + _string(t.topic) + _string("cdr") + meta)
+    def _channel_record(self, t: Topic) -> bytes:
+        meta = map_field([(string_field("offered_qos_profiles"), string_field(t.qos_yaml))])
+        return record("channel", U16.pack(t.channel) + U16.pack(self._schemas[t.msgtype][0])
+                       + string_field(t.topic) + string_field("cdr") + meta)
 
     # -- messages ------------------------------------------------------------------------
     def write(self, topic: str, t_ns: int, data: bytes) -> None:
@@ -226,7 +167,7 @@ class McapBagWriter:
         # (arrays only once per chunk), no numpy call per message
         t = self._topic(topic)
         t_ns = int(t_ns)
-        rec = _MESSAGE.pack(0x05, 22 + len(data), t.channel, 0, t_ns, t_ns) + data
+        rec = MESSAGE.pack(0x05, 22 + len(data), t.channel, 0, t_ns, t_ns) + data
         ch = self._chunk
         if ch.size and ch.size + len(rec) > self.chunk_bytes:
             self._flush()
@@ -279,7 +220,7 @@ class McapBagWriter:
             rows: Any = buf[a:b]  # C-contiguous rows: no copy
             self._add(memoryview(rows).cast("B"), index, int(t[a]), int(t[b - 1]))
 
-    def _topic(self, topic: str) -> _Topic:
+    def _topic(self, topic: str) -> Topic:
         try:
             return self.topics[topic]
         except KeyError:
@@ -319,22 +260,22 @@ class McapBagWriter:
         crc = zlib.crc32(raw)
         comp, name = (self._zstd.compress(raw), "zstd") if self._zstd is not None else (raw, "")
         start = self._f.tell()
-        self._f.write(_record("chunk", _U64.pack(ch.t0) + _U64.pack(ch.t1)
-                              + _U64.pack(len(raw)) + _U32.pack(crc) + _string(name)
-                              + _U64.pack(len(comp)) + comp))
+        self._f.write(record("chunk", U64.pack(ch.t0) + U64.pack(ch.t1)
+                              + U64.pack(len(raw)) + U32.pack(crc) + string_field(name)
+                              + U64.pack(len(comp)) + comp))
         end = self._f.tell()
         offsets = []
         for c in sorted(ch.index):
             e = np.concatenate(ch.index[c]).astype("<u8")
             offsets.append((c, self._f.tell()))
-            self._f.write(_record("message_index", _U16.pack(c) + _U32.pack(e.nbytes)
+            self._f.write(record("message_index", U16.pack(c) + U32.pack(e.nbytes)
                                   + e.tobytes()))
-        self._chunk_indexes.append(_record(
-            "chunk_index", _U64.pack(ch.t0) + _U64.pack(ch.t1) + _U64.pack(start)
-            + _U64.pack(end - start)
-            + _map([(_U16.pack(c), _U64.pack(o)) for c, o in offsets])
-            + _U64.pack(self._f.tell() - end) + _string(name) + _U64.pack(len(comp))
-            + _U64.pack(len(raw))))
+        self._chunk_indexes.append(record(
+            "chunk_index", U64.pack(ch.t0) + U64.pack(ch.t1) + U64.pack(start)
+            + U64.pack(end - start)
+            + map_field([(U16.pack(c), U64.pack(o)) for c, o in offsets])
+            + U64.pack(self._f.tell() - end) + string_field(name) + U64.pack(len(comp))
+            + U64.pack(len(raw))))
         self._t0, self._t1 = min(self._t0, ch.t0), max(self._t1, ch.t1)
         self._chunk = _Chunk()
 
@@ -373,18 +314,18 @@ class McapBagWriter:
             text = yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=True)
             f = self._f
             meta_start = f.tell()
-            f.write(_record("metadata", _string("rosbag2") + _map(
-                [(_string("serialized_metadata"), _string(text.strip()))])))
+            f.write(record("metadata", string_field("rosbag2") + map_field(
+                [(string_field("serialized_metadata"), string_field(text.strip()))])))
             meta_end = f.tell()
-            f.write(_record("data_end", _U32.pack(0)))
+            f.write(record("data_end", U32.pack(0)))
             groups = []
             summary_start = f.tell()
             for op, recs in (("schema", [r for _, r in self._schemas.values()]),
                              ("channel", [self._channel_record(t) for t in self.topics.values()]),
                              ("chunk_index", self._chunk_indexes),
-                             ("metadata_index", [_record("metadata_index", _U64.pack(meta_start)
-                                                         + _U64.pack(meta_end - meta_start)
-                                                         + _string("rosbag2"))]),
+                             ("metadata_index", [record("metadata_index", U64.pack(meta_start)
+                                                         + U64.pack(meta_end - meta_start)
+                                                         + string_field("rosbag2"))]),
                              ("statistics", [self._statistics()])):
                 at = f.tell()
                 for r in recs:
@@ -393,10 +334,10 @@ class McapBagWriter:
                     groups.append((op, at, f.tell() - at))
             offsets_start = f.tell()
             for op, at, length in groups:
-                f.write(_record("summary_offset", bytes([_OP[op]]) + _U64.pack(at)
-                                + _U64.pack(length)))
-            f.write(_record("footer", _U64.pack(summary_start) + _U64.pack(offsets_start)
-                            + _U32.pack(0)) + MAGIC)
+                f.write(record("summary_offset", bytes([OPCODES[op]]) + U64.pack(at)
+                                + U64.pack(length)))
+            f.write(record("footer", U64.pack(summary_start) + U64.pack(offsets_start)
+                            + U32.pack(0)) + MAGIC)
             f.close()
             self._closed = True
             (self._inner / "metadata.yaml").write_text(yaml.safe_dump(meta, sort_keys=True))
@@ -408,11 +349,11 @@ class McapBagWriter:
     def _statistics(self) -> bytes:
         counts = [(t.channel, t.count) for t in self.topics.values()]
         n = sum(c for _, c in counts)
-        return _record("statistics", _U64.pack(n) + _U16.pack(len(self._schemas))
-                       + _U32.pack(len(self.topics)) + _U32.pack(0) + _U32.pack(1)
-                       + _U32.pack(len(self._chunk_indexes))
-                       + _U64.pack(self._t0 if n else 0) + _U64.pack(self._t1 if n else 0)
-                       + _map([(_U16.pack(c), _U64.pack(k)) for c, k in counts]))
+        return record("statistics", U64.pack(n) + U16.pack(len(self._schemas))
+                       + U32.pack(len(self.topics)) + U32.pack(0) + U32.pack(1)
+                       + U32.pack(len(self._chunk_indexes))
+                       + U64.pack(self._t0 if n else 0) + U64.pack(self._t1 if n else 0)
+                       + map_field([(U16.pack(c), U64.pack(k)) for c, k in counts]))
 
     def abort(self) -> None:
         """Give up: close the file and remove the staging directory."""
@@ -425,4 +366,4 @@ class McapBagWriter:
             shutil.rmtree(self.staging, ignore_errors=True)
 
 
-__all__ = ["CHUNK_BYTES", "MESSAGE_HEADER", "McapBagWriter", "RowTemplate"]
+__all__ = ["CHUNK_BYTES", "McapBagWriter"]

@@ -31,7 +31,8 @@ from numpy.typing import NDArray
 from dcsms_ros import cdr
 from dcsms_ros.analysis.bagio import LATCHED_QOS, BagWriter
 from dcsms_ros.analysis.export import to_six
-from dcsms_ros.analysis.mcapwrite import MESSAGE_HEADER, McapBagWriter, RowTemplate
+from dcsms_ros.analysis.mcaprecords import MESSAGE_HEADER, RowTemplate
+from dcsms_ros.analysis.mcapwrite import McapBagWriter
 from dcsms_ros.analysis.reader import CONFIG_TOPIC, config_to_yaml
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig

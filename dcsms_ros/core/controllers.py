@@ -17,14 +17,13 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.filters import (
     IDENTITY_SECTION,
     TF,
-    SosFilter,
     feedback_tf,
     feedforward_tf,
-    flat,
     to_sos,
 )
 from dcsms_ros.core.geometry import drive_matrix
 from dcsms_ros.core.modes import ControllerId
+from dcsms_ros.core.sosfilter import SosFilter, flat
 from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -211,7 +210,7 @@ class _Loop:
 
     def prime(self, twist: ArrayLike) -> None:
         """Start the filters in the steady state of a constant ``twist`` (dof,) (a controller
-        joining a running plant; see :meth:`~dcsms_ros.core.filters.SosFilter.prime`)."""
+        joining a running plant; see :meth:`~dcsms_ros.core.sosfilter.SosFilter.prime`)."""
         x = np.asarray(twist, dtype=np.float64)
         if np.isfinite(x).all():
             self._filter.prime(x[self._axes])

@@ -8,8 +8,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from dcsms_ros.core.config import SystemConfig
-from dcsms_ros.core.filters import SosFilter, to_sos
+from dcsms_ros.core.filters import to_sos
 from dcsms_ros.core.sensors import body_sensor_matrices, channel_layout, extension_tf
+from dcsms_ros.core.sosfilter import SosFilter
 
 Array = NDArray[np.float64]
 

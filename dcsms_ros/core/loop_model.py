@@ -29,9 +29,9 @@ from numpy.typing import NDArray
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
-from dcsms_ros.core.filters import SosFilter, sos_state_space
 from dcsms_ros.core.modes import ControllerId, Mode, controller_ids, enabled_controllers
 from dcsms_ros.core.simulator import PlantSimulator, check_plant
+from dcsms_ros.core.sosfilter import SosFilter, sos_state_space
 
 Array = NDArray[np.float64]
 CArray = NDArray[np.complex128]

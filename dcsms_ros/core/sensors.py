@@ -14,8 +14,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from dcsms_ros.core.config import SensorConfig, SystemConfig
-from dcsms_ros.core.filters import TF, SosFilter, to_sos, unity
+from dcsms_ros.core.filters import TF, to_sos, unity
 from dcsms_ros.core.geometry import sensor_matrix
+from dcsms_ros.core.sosfilter import SosFilter
 from dcsms_ros.core.topics import body_names
 
 Array = NDArray[np.float64]

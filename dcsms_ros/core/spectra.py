@@ -17,8 +17,8 @@ from numpy.typing import NDArray
 
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.disturbance import BandNoise, Disturbances
-from dcsms_ros.core.filters import sos_state_space
 from dcsms_ros.core.loop_model import LoopModel, freq_response
+from dcsms_ros.core.sosfilter import sos_state_space
 
 Array = NDArray[np.float64]
 

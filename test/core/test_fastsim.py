@@ -11,9 +11,10 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import Fader, FeedbackLoop
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.core.engine import Simulation
-from dcsms_ros.core.filters import SosFilter, feedback_sos
+from dcsms_ros.core.filters import feedback_sos
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.core.simulator import PlantSimulator
+from dcsms_ros.core.sosfilter import SosFilter
 
 
 def _sos_by_the_docstring(arrays: tuple[np.ndarray, ...], u: np.ndarray) -> np.ndarray:

@@ -12,7 +12,6 @@ from scipy import signal
 
 from dcsms_ros.core.config import FeedbackConfig, FeedforwardConfig
 from dcsms_ros.core.filters import (
-    SosFilter,
     feedback_sos,
     feedback_tf,
     feedforward_tf,
@@ -22,6 +21,7 @@ from dcsms_ros.core.filters import (
     notch,
     to_sos,
 )
+from dcsms_ros.core.sosfilter import SosFilter
 from dcsms_ros.errors import ConfigError
 
 FS = 2000.0

@@ -13,9 +13,10 @@ from scipy import signal
 from dcsms_ros.core.check import stability
 from dcsms_ros.core.config import load_config, with_overrides
 from dcsms_ros.core.engine import simulate
-from dcsms_ros.core.filters import SosFilter, feedback_tf, feedforward_tf, sos_state_space, to_sos
+from dcsms_ros.core.filters import feedback_tf, feedforward_tf, to_sos
 from dcsms_ros.core.loop_model import Response, loop_model
 from dcsms_ros.core.modes import ALL_MODES, Mode
+from dcsms_ros.core.sosfilter import SosFilter, sos_state_space
 from dcsms_ros.core.spectra import rms, shaped
 
 ROOT = Path(__file__).resolve().parents[2]
