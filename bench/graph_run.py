@@ -65,9 +65,9 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     timing = run_dir / "timing.npz"
     spec = define_graph(cfg, schedule=schedule, mode=Mode.DFBC_FFC, duration_s=seconds)
     recorded = [f"{spec.namespace}/*", "/diagnostics"]
-    if record and schedule == "lockstep":  # lockstep waits for the recorder, as `up` does
+    if record:  # the run waits for the recorder to listen, as `up` does
         spec = define_graph(cfg, schedule=schedule, mode=Mode.DFBC_FFC, duration_s=seconds,
-                            observers=spec.lockstep_observed())
+                            observers=spec.recorded_observed())
     spec = spec.with_params("plant_simulator", timing_file=str(timing))
     params, graph_file = deploy.write_files(spec, run_dir)
     bag = run_dir / "bag"

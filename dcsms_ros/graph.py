@@ -144,11 +144,13 @@ class GraphSpec:
                 + [nm.force(c) for c in controller_ids(self.num_stages)]
                 + ([nm.force(topics.EXCITATION_ID)] if excited else []))
 
-    def lockstep_observed(self, recorded: Collection[str] | None = None) -> list[str]:
-        """What the plant of a recorded lockstep run waits for the recorder to subscribe to
-        before sample 0 (absolute; ``recorded``: the recorded topics, None: all): every
-        per-sample topic, and the latched mode and configuration, which keep only their newest
-        message: a recorder that found them after a switch would miss the modes before it."""
+    def recorded_observed(self, recorded: Collection[str] | None = None) -> list[str]:
+        """What the plant of a recorded run waits for the recorder to subscribe to before
+        sample 0 (absolute; ``recorded``: the recorded topics, None: all): every per-sample
+        topic, and the latched mode and configuration, which keep only their newest message: a
+        recorder that found them after a switch would miss the modes before it. Real time
+        waits too (bounded by ``handshake_timeout_s``), so the bag starts at sample 0; once
+        stepping, nothing waits on the recorder."""
         nm = self.names
         wanted = [*self.stream_topics(), nm.mode, nm.config]
         return [t for t in wanted if recorded is None or t in recorded]

@@ -37,9 +37,9 @@ def test_nodes_parameters_and_params_file() -> None:
     assert nm.local_status("lab/t2/plant_simulator/fb_stage1") == "plant_simulator/fb_stage1"
     assert nm.local_status("dcsms/plant_simulator") is None
     assert "/lab/t2/truth/ground" in spec.stream_topics()
-    waits = spec.lockstep_observed()
+    waits = spec.recorded_observed()
     assert {*spec.stream_topics(), "/lab/t2/mode", "/lab/t2/config"} == set(waits)
-    assert spec.lockstep_observed(["/lab/t2/mode", "/lab/t2/sensors/raw", "/other"]) == [
+    assert spec.recorded_observed(["/lab/t2/mode", "/lab/t2/sensors/raw", "/other"]) == [
         "/lab/t2/sensors/raw", "/lab/t2/mode"]
 
 

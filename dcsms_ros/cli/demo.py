@@ -170,7 +170,7 @@ def _graph(args: argparse.Namespace, cfg: Any, modes: list[Mode],
     spec = build_graph(cfg, args, "lockstep", modes[0], total, schedule)
     recorded = spec.analysis_topics()
     spec = build_graph(cfg, args, "lockstep", modes[0], total, schedule,
-                       observers=spec.lockstep_observed(recorded))
+                       observers=spec.recorded_observed(recorded))
     status = launch(spec, args, schedule, bag, recorded, out / "logs", True, cfg.plant.rate_hz,
                     interrupted_status=EXIT_INTERRUPTED)
     if status not in (0, EXIT_INTERRUPTED):

@@ -49,6 +49,12 @@ STOP_TIMEOUTS = (5.0, 2.0)
 #: The same for the recorder, which writes its whole backlog first (recorder.DRAIN_MAX_S).
 RECORDER_STOP_TIMEOUTS = (40.0, 5.0)
 RECORDERS = ("process", "composed")
+#: Niceness of a recorder process beside a real-time graph: the observer yields the CPU to the
+#: control path's threads under the normal scheduler (its DDS reception above all, which is what
+#: delivers a sample to a SCHED_FIFO hot thread). 5 alternating pairs of 20 s per-process runs:
+#: stale forces 50-693 against 671-5,164 at 0, every pair lower, the bag as complete
+#: (docs/performance.md). Lockstep waits for its recorder, so there it keeps the parent's.
+RECORDER_NICE = 10
 
 
 @dataclass
@@ -60,6 +66,8 @@ class Child:
     log: Path | None = None
     proc: subprocess.Popen[bytes] | None = None
     env: dict[str, str] = field(default_factory=dict)
+    #: added to the process's niceness (0: the parent's)
+    nice: int = 0
 
 
 def node_argv(spec: GraphSpec, name: str, params_file: Path) -> list[str]:
@@ -122,9 +130,10 @@ def child_env() -> dict[str, str]:
 PR_SET_PDEATHSIG = 1
 
 
-def _dies_with(parent: int) -> Callable[[], None] | None:
+def _dies_with(parent: int, nice: int = 0) -> Callable[[], None] | None:
     """A ``preexec_fn`` that makes the child get SIGTERM when process ``parent`` (the caller
-    of :func:`start`, from its calling thread) dies; None where ``prctl`` does not exist."""
+    of :func:`start`, from its calling thread) dies, and adds ``nice`` to its niceness; None
+    where ``prctl`` does not exist."""
     if not sys.platform.startswith("linux"):
         return None
     prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before the fork
@@ -133,6 +142,8 @@ def _dies_with(parent: int) -> Callable[[], None] | None:
         prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
         if os.getppid() != parent:  # it died before the line above
             os.kill(os.getpid(), signal.SIGTERM)
+        if nice:
+            os.nice(nice)
 
     return arm
 
@@ -141,7 +152,7 @@ def start(kids: Sequence[Child], log_dir: Path, verbose: bool) -> None:
     """Start every child in its own session (the terminal's Ctrl-C reaches only ``up``); each
     gets SIGTERM if this process dies without stopping it (see the module notes)."""
     env = child_env()
-    arm = _dies_with(os.getpid())
+    parent = os.getpid()
     for kid in kids:
         out: Any = None
         if not verbose:
@@ -152,7 +163,7 @@ def start(kids: Sequence[Child], log_dir: Path, verbose: bool) -> None:
         kid.proc = subprocess.Popen(kid.argv, stdout=out, stderr=subprocess.STDOUT if out else
                                     None, stdin=subprocess.DEVNULL, env={**env, **kid.env},
                                     start_new_session=True,
-                                    preexec_fn=arm)  # noqa: PLW1509
+                                    preexec_fn=_dies_with(parent, kid.nice))  # noqa: PLW1509
         if out is not None:
             out.close()
 
@@ -225,7 +236,9 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
             # lockstep: the reader history covers as much as the writers' (qos.py)
             depth = ["--queue-depth", str(LOCKSTEP_WRITER_DEPTH)] \
                 if spec.schedule == "lockstep" else []
-            kids.append(Child("recorder", recorder_command(how.record, topics) + depth))
+            nice = RECORDER_NICE if spec.schedule != "lockstep" else 0
+            kids.append(Child("recorder", recorder_command(how.record, topics) + depth,
+                              nice=nice))
     if how.composed:
         graph = [composed_child(graph_file, params_file, how.rt_priority, in_process)]
     else:

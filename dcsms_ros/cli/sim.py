@@ -183,7 +183,7 @@ def _graph(args: argparse.Namespace, cfg: Any, mode: Any, schedule: list[Any]) -
     nm = spec.names
     recorded = [nm.config, nm.mode, nm.supervisor_state, *spec.stream_topics()]
     spec = build_graph(cfg, args, "lockstep", mode, args.duration, schedule,
-                       observers=spec.lockstep_observed(recorded))
+                       observers=spec.recorded_observed(recorded))
     t0 = time.perf_counter()
     status = launch(spec, args, schedule, args.out, recorded, None, True, cfg.plant.rate_hz)
     if status == 0:

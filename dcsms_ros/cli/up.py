@@ -213,9 +213,9 @@ def run(args: argparse.Namespace) -> int:
     refuse_unstable_start(cfg, mode, args.allow_unstable)
     observers = list(args.wait_for_subscribers)
     spec = build_graph(cfg, args, args.schedule, mode, args.duration or 0.0, events)
-    if args.record is not None and args.schedule == "lockstep":
-        # lockstep must not outrun the recorder's start
-        observers += spec.lockstep_observed(args.record_topics or None)
+    if args.record is not None:
+        # the run starts once the recorder listens: its bag holds every sample from 0
+        observers += spec.recorded_observed(args.record_topics or None)
     if observers:
         spec = build_graph(cfg, args, args.schedule, mode, args.duration or 0.0, events,
                            observers)

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from dcsms_ros.cli import deploy
+
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 #: The parent: starts a recorder and an idle child through deploy.start, prints their pids,
@@ -70,3 +72,17 @@ def test_children_end_when_the_parent_is_killed(domain: int, tmp_path: Path) -> 
         for pid in [parent.pid, *kids]:
             if _alive(pid):
                 os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize("nice", [0, 10])
+def test_a_child_runs_at_the_niceness_it_asks(nice: int, tmp_path: Path) -> None:
+    """`Child.nice` adds to the child's niceness (a real-time run's recorder: +10), and only
+    to that child."""
+    probe = [sys.executable, "-c", "import os; print(os.nice(0))"]
+    kids = [deploy.Child("asked", probe, nice=nice), deploy.Child("plain", probe)]
+    deploy.start(kids, tmp_path, verbose=False)
+    for k in kids:
+        assert k.proc is not None and k.proc.wait(30) == 0
+    base = os.nice(0)
+    assert int((tmp_path / "asked.log").read_text()) == min(base + nice, 19)
+    assert int((tmp_path / "plain.log").read_text()) == base
