@@ -19,7 +19,7 @@ import time
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
@@ -39,8 +39,9 @@ from dcsms_ros.ros.connectivity import (
     publishers_matched,
 )
 from dcsms_ros.ros.intraprocess import SamplePublisher
-from dcsms_ros.ros.msgs import node_status, sample_ns, to_stamp
+from dcsms_ros.ros.msgs import sample_ns, to_stamp
 from dcsms_ros.ros.params import declare_observed
+from dcsms_ros.ros.reports import Reports, Status
 
 #: Seconds the handshake waits after the graph looks connected, so DDS endpoints match too.
 SETTLE_S = 0.2
@@ -77,7 +78,7 @@ class PlantIO:
                                qos.stream_pub(node.lockstep, durable=True))
         self.pub_truth = [pub(TwistStamped, names.truth(b), pub_qos)
                           for b in self.bodies] if opts.publish_truth else []
-        self.pub_diag = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        self.reports = Reports(node, node.hot)
         # what a supervisor decides on travels on typed topics, not in the diagnostics' text
         self.pub_held = node.create_publisher(Int64, names.plant_held, qos.latched())
         self.pub_finished = node.create_publisher(Bool, names.plant_finished, qos.latched())
@@ -119,7 +120,7 @@ class PlantIO:
         out += [f"observer of {t}" for t in self.observed if not outside_graph(nd, t)]
         own = [self.pub_raw, self.pub_applied, *self.pub_truth]
         # a supervisor (`dcsms up`) must hear the end
-        own += [p for p in (self.pub_diag, self.pub_finished) if p.topic_name in self.observed]
+        own += [p for p in (self.reports.pub, self.pub_finished) if p.topic_name in self.observed]
         if self.pub_check is not None:
             own.append(self.pub_check)
         if not out and not publishers_matched(nd, own, self.observed):
@@ -291,16 +292,13 @@ class PlantIO:
                   "saturations": self.sim.saturations, "finished": nd.finished,
                   "hold_sample": hold, "held": hold == self.sim.k and not b.waiting,
                   "trip_checkpoints": b.state("trip") if "trip" in b.participants else "off"}
-        arr = DiagnosticArray()
-        arr.header.stamp = to_stamp(self.ns)
-        arr.status = [node_status(nd, level, msg, values)] + [
-            node_status(nd, DiagnosticStatus.OK if s == "ok" else DiagnosticStatus.WARN, s,
+        self.reports.publish(self.ns, [Status(level, msg, values)] + [
+            Status(DiagnosticStatus.OK if s == "ok" else DiagnosticStatus.WARN, s,
                         {"timeouts": b.faults[c], "stale_events": nd.held.stale_events[c],
                          "stale_at_mono_ns": self.stale_at[c][0],
                          "stale_at_sample": self.stale_at[c][1],
                          "last_input_mono_ns": int(max(nd.held.arrived(c), 0.0) * 1e9)}, sub=c)
-            for c, s in states.items()]
-        self.pub_diag.publish(arr)
+            for c, s in states.items()])
 
     def closing(self) -> list[SamplePublisher]:
         """Write the timing file (benchmarks); returns the publishers to wait for."""
@@ -312,7 +310,7 @@ class PlantIO:
             arrays.update({f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
                            for c, v in self._lat.items()})
             np.savez(self.node.opts.timing_file, **arrays)
-        return [self.pub_raw, self.pub_applied, *self.pub_truth, self.pub_diag, self.pub_held,
+        return [self.pub_raw, self.pub_applied, *self.pub_truth, self.reports.pub, self.pub_held,
                 self.pub_finished]
 
 

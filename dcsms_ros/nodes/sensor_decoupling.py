@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -29,7 +29,6 @@ from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
-from dcsms_ros.ros.msgs import node_status, to_stamp
 from dcsms_ros.ros.params import (
     SELECTORS,
     NodeConfig,
@@ -37,6 +36,7 @@ from dcsms_ros.ros.params import (
     declare_observed,
     declare_schedule,
 )
+from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.runtime import main_for
 
 
@@ -66,7 +66,7 @@ class SensorDecouplingNode(Node, Hosted):
         self.pubs = [self.hot.publisher(TwistStamped, topics.LOCAL.velocity(b),
                                         qos.stream_pub(lockstep, durable=True))
                      for b in self.bodies]
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        self.reports = Reports(self, self.hot)
         self.hot.subscribe(JointState, topics.LOCAL.sensors_raw, self._on_raw,
                            qos.stream_sub(lockstep), raw=True)
         # lockstep: the first sample is answered only once every reader is matched
@@ -118,20 +118,17 @@ class SensorDecouplingNode(Node, Hosted):
     def _report(self) -> None:
         level = DiagnosticStatus.WARN if self.dec.nonfinite or self.bad_messages else \
             DiagnosticStatus.OK
-        arr = DiagnosticArray()
-        arr.header.stamp = to_stamp(max(self.answers.last_ns, 0))
-        arr.status = [node_status(self, level, "running", {
+        self.reports.publish(self.answers.last_ns, [Status(level, "running", {
             "samples": self.samples, "repeats": self.answers.repeats,
             "out_of_order": self.answers.out_of_order,
             "nonfinite": self.dec.nonfinite, "bad_messages": self.bad_messages,
-            "rejected_inputs": self.guard.rejected})]
-        self.pub_diag.publish(arr)
+            "rejected_inputs": self.guard.rejected})])
 
     def final_reports(self) -> list[SamplePublisher]:
         """Publish the final counters; returns the publishers whose readers should
         acknowledge before the node goes (a clean exit loses nothing)."""
         self._report()
-        return [*self.pubs, self.pub_diag]
+        return [*self.pubs, self.reports.pub]
 
 
 main = main_for(SensorDecouplingNode)

@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rclpy.node import Node
 from std_msgs.msg import Int64
@@ -47,7 +47,6 @@ from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
-from dcsms_ros.ros.msgs import node_status, to_stamp
 from dcsms_ros.ros.params import (
     NodeConfig,
     answerer,
@@ -55,6 +54,7 @@ from dcsms_ros.ros.params import (
     declare_observed,
     declare_schedule,
 )
+from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.stability import StabilityGuard
 
 
@@ -106,7 +106,7 @@ class ControllerNode(Node, Hosted):
         self.watchdog = Watchdog(cfg.control.input_timeout_s)
         self.pub = self.hot.publisher(WrenchStamped, topics.LOCAL.force(cid),
                                       qos.stream_pub(self.lockstep))
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        self.reports = Reports(self, self.hot)
         self.hot.subscribe(TwistStamped, topics.LOCAL.velocity(body), self._on_velocity,
                            qos.stream_sub(self.lockstep), raw=True)
         self.create_service(SetBool, "~/enable", self._on_enable)
@@ -235,10 +235,8 @@ class ControllerNode(Node, Hosted):
     # -- reporting ---------------------------------------------------------------------------
     def _report(self) -> None:
         stale = self.watchdog.stale
-        arr = DiagnosticArray()
-        arr.header.stamp = to_stamp(max(self.answers.last_ns, 0))
-        arr.status = [node_status(
-            self, DiagnosticStatus.WARN if stale else DiagnosticStatus.OK,
+        self.reports.publish(self.answers.last_ns, [Status(
+            DiagnosticStatus.WARN if stale else DiagnosticStatus.OK,
             "stale input: zero force" if stale else
             ("enabled" if self.loop.enabled else "disabled"), {
                 "enabled": self.loop.enabled, "gain": f"{self.loop.fader.value:.3f}",
@@ -248,11 +246,10 @@ class ControllerNode(Node, Hosted):
                 "nonfinite_outputs": self.nonfinite_out, "rejected_inputs": self.guard.rejected,
                 "stale_at_mono_ns": self.stale_at_mono_ns,
                 "params_changed_at_ns": self.changed_at_ns,
-                "stale_events": self.watchdog.stale_events, "boot_ns": self.boot_ns})]
-        self.pub_diag.publish(arr)
+                "stale_events": self.watchdog.stale_events, "boot_ns": self.boot_ns})])
 
     def final_reports(self) -> list[SamplePublisher]:
         """Publish the final counters; returns the publishers whose readers should
         acknowledge before the node goes (a clean exit loses nothing)."""
         self._report()
-        return [self.pub, self.pub_diag]
+        return [self.pub, self.reports.pub]

@@ -92,6 +92,28 @@ class HotPath:
         self._takes: list[tuple[Any, Any, bool, Callable[[Any], None]]] = []
         self._asked: dict[Subscription, tuple[Any, str, Callable[[Any], None], QoSProfile]] = {}
         self._replaced: dict[Subscription, Subscription] = {}
+        #: what :meth:`after` queued while the host holds the lock for an executor callback
+        self._deferred: list[Callable[[], None]] | None = None
+
+    def after(self, fn: Callable[[], None]) -> None:
+        """Run ``fn()`` once the executor callback in progress has released the lock (the
+        host's :mod:`.serialized` wrapper runs it), or at once anywhere else (a hot handler, a
+        final report). ``fn`` runs beside the hot loop, so it must not touch the node's state:
+        give it values read under the lock (a report's message building and publication)."""
+        if self._deferred is not None:
+            self._deferred.append(fn)
+        else:
+            fn()
+
+    def defer(self) -> None:
+        """The host, holding the lock for an executor callback: queue what :meth:`after` gets."""
+        self._deferred = []
+
+    def deferred(self) -> list[Callable[[], None]]:
+        """The host, still holding the lock: what :meth:`after` queued since :meth:`defer`
+        (for the host to run once it released the lock); stop queueing."""
+        out, self._deferred = self._deferred or [], None
+        return out
 
     @property
     def error(self) -> BaseException | None:

@@ -15,7 +15,10 @@ a hot thread; it reads only the node's configuration. Entities created after the
 the node (the one-shot timers of :mod:`.services`) touch only their own futures.
 
 Each wrapper records the longest time it held the lock (:attr:`Serialized.longest_s`): a
-callback that holds it long delays the node's next sample by as much.
+callback that holds it long delays the node's next sample by as much. What a callback hands to
+:meth:`.HotPath.after` (a report's message building and publication) runs after the lock is
+released: the executor's thread runs under the normal scheduler, and the longer it holds the
+lock the likelier another process preempts it there, with the SCHED_FIFO hot thread waiting.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from typing import Any
 from rclpy.node import Node
 
 from dcsms_ros.ros.hosted import hot_path
-from dcsms_ros.ros.hotpath import DetachedGroup
+from dcsms_ros.ros.hotpath import DetachedGroup, HotPath
 
 #: Packages of the services every rclpy node creates for itself (parameters, type description).
 BUILTIN_SERVICES = ("rcl_interfaces.", "type_description_interfaces.")
@@ -57,10 +60,14 @@ class Serialized:
     ----------
     lock : threading.Lock or RLock
         The node's hot-path lock.
+    hot : HotPath, optional
+        The node's hot path: what a callback hands to its :meth:`~.HotPath.after` runs once the
+        lock is released.
     """
 
-    def __init__(self, lock: Any) -> None:
+    def __init__(self, lock: Any, hot: HotPath | None = None) -> None:
         self.lock = lock
+        self.hot = hot
         #: Longest single hold (s) and the callback that held it.
         self.longest_s = 0.0
         self.longest = ""
@@ -68,16 +75,24 @@ class Serialized:
 
     @contextmanager
     def held(self, name: str) -> Generator[None, None, None]:
-        """Hold the lock for the ``with`` block; records how long."""
+        """Hold the lock for the ``with`` block (records how long), then run what the block
+        handed to :meth:`.HotPath.after`."""
+        later: list[Callable[[], None]] = []
         with self.lock:
             t0 = time.perf_counter()
+            if self.hot is not None:
+                self.hot.defer()
             try:
                 yield
             finally:
+                if self.hot is not None:
+                    later = self.hot.deferred()
                 dt = time.perf_counter() - t0
                 self.calls += 1
                 if dt > self.longest_s:
                     self.longest_s, self.longest = dt, name
+        for fn in later:
+            fn()
 
     def wrap(self, fn: Callable[..., Any], name: str) -> Callable[..., Any]:
         """``fn`` run under the lock; an ``async def`` one step at a time (its signature is
@@ -119,10 +134,10 @@ def serialize(node: Node) -> Serialized | None:
     not served by the hot loop, guard conditions) to run under its hot-path lock; returns the
     wrapper's record, or None for a node without a hot path. Call before the executor gets the
     node."""
-    lock = hot_lock(node)
-    if lock is None:
+    hot = hot_path(node)
+    if hot is None:
         return None
-    serial = Serialized(lock)
+    serial = Serialized(hot.lock, hot)
     for tmr in node.timers:
         tmr.callback = serial.wrap(tmr.callback, f"timer {tmr.timer_period_ns / 1e9:g} s")
     for srv in node.services:

@@ -3,20 +3,24 @@ real rclpy nodes, a multi-threaded executor, messages over DDS."""
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 from typing import Any
 
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import Int64
 from std_srvs.srv import Trigger
 
+from dcsms_ros.core import topics
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.serialized import Serialized, serialize
 from dcsms_ros.ros.services import pause
 
@@ -153,4 +157,73 @@ def test_an_async_callback_frees_the_hot_loop_while_it_waits(ctx) -> None:
         ex.shutdown(timeout_sec=2.0)
         probe.hot.stop()
         probe.destroy_node()
+        other.destroy_node()
+
+
+class Reporter(Node, Hosted):
+    """A node whose 1 ms timer reads a counter under the hot lock and reports it (ros/reports.py),
+    while its hot handler bumps the counter and reports at once."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("reporter", **kwargs)
+        self.hot = HotPath(self)
+        self.reports = Reports(self, self.hot)
+        self.count = 0
+        self.held_while_sent: list[bool] = []
+        self.hot.subscribe(Int64, "reporter_in", self._on_msg, qos.stream_sub(True))
+        self.create_timer(0.001, self._report)
+        self.hot.start()
+
+    def _on_msg(self, msg: Int64) -> None:
+        self.count += 1
+        self._report()
+
+    def _report(self) -> None:
+        self.reports.publish(self.count, [Status(DiagnosticStatus.OK, "ok",
+                                                 {"count": self.count})])
+        self.hot.after(self._note_lock)
+
+    def _note_lock(self) -> None:
+        # whether this thread holds the (reentrant) lock; another thread may hold it meanwhile
+        self.held_while_sent.append(self.hot.lock._is_owned())
+
+
+def test_reports_go_out_after_the_lock_and_in_order(ctx) -> None:
+    """What a timer hands to `HotPath.after` runs once the host released the hot lock; the hot
+    handler's runs at once (under it). The reports a reader receives never go back: a report
+    read before one already published is dropped, not sent late."""
+    node = Reporter(context=ctx)
+    serial = serialize(node)
+    other = rclpy.create_node("listener", context=ctx)
+    got: list[int] = []
+    other.create_subscription(DiagnosticArray, topics.DIAGNOSTICS,
+                              lambda m: got.append(int(m.header.stamp.nanosec)), qos.status())
+    ex = MultiThreadedExecutor(num_threads=3, context=ctx)
+    ex.add_node(node)
+    ex.add_node(other)
+    threading.Thread(target=ex.spin, daemon=True).start()
+    try:
+        pub = other.create_publisher(Int64, "reporter_in", qos.stream_pub(True))
+        end = time.monotonic() + 10.0
+        while pub.get_subscription_count() == 0 and time.monotonic() < end:
+            time.sleep(0.01)
+        for k in range(400):
+            pub.publish(Int64(data=k))
+            time.sleep(0.0005)
+        end = time.monotonic() + 10.0
+        while node.count < 400 and time.monotonic() < end:
+            time.sleep(0.01)
+        time.sleep(0.2)
+        assert node.count == 400 and serial is not None
+        assert len(got) > 400 and got[-1] == 400, (len(got), got[-5:])
+        assert all(b >= a for a, b in itertools.pairwise(got)), "a report went back"
+        timer_runs = serial.calls  # every executor callback was the timer's
+        assert timer_runs > 50
+        # the timer's deferred calls ran with the lock free, the handler's under it
+        assert node.held_while_sent.count(False) >= timer_runs - 1
+        assert node.held_while_sent.count(True) == 400
+    finally:
+        ex.shutdown(timeout_sec=2.0)
+        node.hot.stop()
+        node.destroy_node()
         other.destroy_node()
