@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from dcsms_ros.core.check import actuator_limits
 from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.controllers import actuator_limits
 from dcsms_ros.core.supervisor import Checkpoint
 from dcsms_ros.core.trip import CHECK_PERIOD_S, TripChecker, TripMonitor
 

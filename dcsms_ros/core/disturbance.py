@@ -13,9 +13,10 @@ import warnings
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import signal
 
 from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.filterdesign import butter_sos
+from dcsms_ros.core.sosfilter import sosfilt
 from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -38,12 +39,10 @@ def band_sos(band_hz: tuple[float, float] | ArrayLike, fs: float) -> Array | Non
     if lo <= 0.0 and hi >= nyq:
         return None
     if lo <= 0.0:
-        sos = signal.butter(ORDER, hi, btype="lowpass", fs=fs, output="sos")
-    elif hi >= nyq:
-        sos = signal.butter(ORDER, lo, btype="highpass", fs=fs, output="sos")
-    else:
-        sos = signal.butter(ORDER, [lo, hi], btype="bandpass", fs=fs, output="sos")
-    return np.asarray(sos, dtype=np.float64)
+        return butter_sos(ORDER, hi, "lowpass", fs)
+    if hi >= nyq:
+        return butter_sos(ORDER, lo, "highpass", fs)
+    return butter_sos(ORDER, (lo, hi), "bandpass", fs)
 
 
 def _slowest_pole_radius(sos: Array) -> float:
@@ -66,8 +65,8 @@ def _noise_gain(key: bytes) -> float:
     n = 64 if r <= 0.0 else int(math.ceil(math.log(1e-16) / (2.0 * math.log(r)))) + 64
     imp = np.zeros(min(n, 10_000_000))
     imp[0] = 1.0
-    h = signal.sosfilt(sos, imp)
-    return float(np.dot(h, h))
+    h, _ = sosfilt(sos, imp[:, None], np.zeros((sos.shape[0], 2, 1)))
+    return float(np.dot(h[:, 0], h[:, 0]))
 
 
 class BandNoise:
@@ -121,8 +120,8 @@ class BandNoise:
 
     def _refill(self) -> None:
         w = self._rng.standard_normal((BLOCK, self.channels))
-        if self._sos is not None:
-            w, self._zi = signal.sosfilt(self._sos, w, axis=0, zi=self._zi)
+        if self._sos is not None and self._zi is not None:
+            w, self._zi = sosfilt(self._sos, w, self._zi)
         w *= self._scale
         w.flags.writeable = False  # rows are handed out as views
         self._buf = w
