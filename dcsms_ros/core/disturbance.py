@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.filterdesign import butter_sos
-from dcsms_ros.core.sosfilter import sosfilt
+from dcsms_ros.core.sosfilter import BlockFilter, sosfilt
 from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -84,6 +84,9 @@ class BandNoise:
     rng : numpy.random.Generator
     warm : bool
         Warm the filter up (False: only its shape is wanted, no sample will be drawn).
+    block_filter : callable
+        Runs the band-pass over a block (:data:`.sosfilter.BlockFilter`; the batch engine
+        passes a compiled one with the same bits).
 
     Notes
     -----
@@ -92,8 +95,10 @@ class BandNoise:
     """
 
     def __init__(self, rms: float | ArrayLike, band_hz: tuple[float, float] | ArrayLike,
-                 fs: float, channels: int, rng: np.random.Generator, warm: bool = True) -> None:
+                 fs: float, channels: int, rng: np.random.Generator, warm: bool = True,
+                 block_filter: BlockFilter = sosfilt) -> None:
         self.channels = int(channels)
+        self._run = block_filter
         self._rng = rng
         self._sos = band_sos(band_hz, fs)
         self._scale = (np.broadcast_to(np.asarray(rms, float), (self.channels,))
@@ -121,7 +126,7 @@ class BandNoise:
     def _refill(self) -> None:
         w = self._rng.standard_normal((BLOCK, self.channels))
         if self._sos is not None and self._zi is not None:
-            w, self._zi = sosfilt(self._sos, w, self._zi)
+            w, self._zi = self._run(self._sos, w, self._zi)
         w *= self._scale
         w.flags.writeable = False  # rows are handed out as views
         self._buf = w
@@ -168,11 +173,13 @@ class Disturbances:
     warm : bool
         False builds the sources without warming their filters up: for their shapes only
         (:mod:`.spectra`); drawing from them then starts with a transient.
+    block_filter : callable
+        As for :class:`BandNoise`.
     """
 
     def __init__(self, cfg: SystemConfig, seed: int | np.random.SeedSequence | None = None,
                  ground: ArrayLike | None = None, table: ArrayLike | None = None,
-                 warm: bool = True) -> None:
+                 warm: bool = True, block_filter: BlockFilter = sosfilt) -> None:
         d = cfg.disturbance
         fs = cfg.plant.rate_hz
         self.dof = cfg.plant.dof
@@ -196,9 +203,10 @@ class Disturbances:
         else:
             rms = d.ground_rms_mps[2:3] if self.dof == 1 else d.ground_rms_mps
             self._gnoise = BandNoise(rms, d.ground_band_hz, fs, self._ntrans,
-                                     np.random.default_rng(g_ss), warm)
+                                     np.random.default_rng(g_ss), warm, block_filter)
         self._fnoise = BandNoise(d.force_rms_n, d.force_band_hz, fs,
-                                 self.num_stages * self._ntrans, np.random.default_rng(f_ss), warm)
+                                 self.num_stages * self._ntrans, np.random.default_rng(f_ss), warm,
+                                 block_filter)
         self._table: Array | None = None
         if table is not None:
             tab = np.asarray(table, dtype=np.float64)

@@ -7,6 +7,7 @@ same arrays (:class:`SosArrays`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, NamedTuple, cast
 
 import numpy as np
@@ -15,6 +16,10 @@ from numpy.typing import ArrayLike, NDArray
 from dcsms_ros.core.filterdesign import sos_steady_state
 
 Array = NDArray[np.float64]
+
+#: A block filter ``(sos (n, 6), x (K, channels), zi (n, 2, channels)) -> (y, zf)`` with the
+#: operations of :func:`sosfilt`: it, or a compiled one that gives the same bits.
+BlockFilter = Callable[[Array, Array, Array], tuple[Array, Array]]
 
 #: Largest channels x sections a :class:`SosFilter` steps on Python floats (numpy beyond: one
 #: numpy call per section costs ~1 us, one float section ~0.25 us per channel).
@@ -286,4 +291,5 @@ def sos_state_space(sos: ArrayLike) -> tuple[Array, Array, Array, Array]:
     return a, b, cu, du
 
 
-__all__ = ["SCALAR_MAX", "SosArrays", "SosFilter", "flat", "sos_state_space", "sosfilt"]
+__all__ = ["SCALAR_MAX", "BlockFilter", "SosArrays", "SosFilter", "flat", "sos_state_space",
+           "sosfilt"]

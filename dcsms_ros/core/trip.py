@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from dcsms_ros.core.config import ControlConfig
 from dcsms_ros.core.filterdesign import butter_sos, sos_steady_state
-from dcsms_ros.core.sosfilter import sosfilt
+from dcsms_ros.core.sosfilter import BlockFilter, sosfilt
 
 Array = NDArray[np.float64]
 
@@ -38,9 +38,14 @@ class TripMonitor:
         Sample rate of the fed signals, Hz.
     channels : int
         Number of signals (e.g. the dof of one stage).
+    block_filter : callable
+        Runs the band-pass over a block (:data:`.sosfilter.BlockFilter`; the batch engine
+        passes a compiled one with the same bits).
     """
 
-    def __init__(self, control: ControlConfig, rate_hz: float, channels: int) -> None:
+    def __init__(self, control: ControlConfig, rate_hz: float, channels: int,
+                 block_filter: BlockFilter = sosfilt) -> None:
+        self._run = block_filter
         lo, hi = control.trip_band_hz
         nyq = rate_hz / 2.0
         # a corner at or above Nyquist, or at 0, degenerates the band-pass to one side
@@ -80,7 +85,7 @@ class TripMonitor:
             # (sensor drift) must not ring through it as a false trip at start or after a reset
             self._zi = sos_steady_state(self.sos)[:, :, None] * x[0][None, None, :]
             self._started = True
-        y, self._zi = sosfilt(self.sos, x, self._zi)
+        y, self._zi = self._run(self.sos, x, self._zi)
         return y
 
     def update(self, block: Array) -> Array:
@@ -139,13 +144,16 @@ class TripChecker:
         Sample rate, Hz.
     num_stages, dof : int
         Shape of the stage velocities fed.
+    block_filter : callable
+        As for :class:`TripMonitor`.
     """
 
     def __init__(self, control: ControlConfig, rate_hz: float, num_stages: int,
-                 dof: int) -> None:
+                 dof: int, block_filter: BlockFilter = sosfilt) -> None:
         self.control = control
         self.every = check_samples(rate_hz)
-        self.monitors = [TripMonitor(control, rate_hz, dof) for _ in range(num_stages)]
+        self.monitors = [TripMonitor(control, rate_hz, dof, block_filter)
+                         for _ in range(num_stages)]
         self.dof = dof
         self.reset()
 
