@@ -31,7 +31,7 @@ REAL_TOL = 100.0 * float(np.finfo(np.float64).eps)
 LEADING_ZERO = 1e-14
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # arrays: no elementwise == to misread as one bool
 class Rational:
     """A SISO transfer function ``num(s) / den(s)``, coefficients highest power first.
 
