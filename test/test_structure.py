@@ -236,6 +236,37 @@ def test_dcsms_help_does_not_import_ros() -> None:
     assert res.stdout.strip() == "[]", res.stdout
 
 
+#: Analysis libraries a node process must not import: ~0.8 s of CPU each at start-up
+#: (:mod:`dcsms_ros.core.filterdesign` designs the filters the nodes run on numpy).
+NODE_FREE = ("control", "scipy.signal", "matplotlib")
+
+_NODE_IMPORTS = """
+import importlib, json, sys
+out = {}
+for name in json.loads(sys.stdin.read()):
+    importlib.import_module(name)
+    bad = [m for m in HEAVY if m in sys.modules]
+    if bad:
+        out[name] = bad
+        break
+print(json.dumps(out))
+"""
+
+
+def test_node_modules_import_no_analysis_library() -> None:
+    """Importing every module of nodes/, ros/ and protocols/ (in one fresh process, one after
+    the other) loads neither python-control, scipy.signal nor matplotlib; the first module
+    that does is named."""
+    todo = [m for m in MODULES if _part(m) in ("nodes", "ros", "protocols")
+            and not m.endswith(".__main__")]
+    assert any(m.startswith("dcsms_ros.nodes.plant") for m in todo)
+    code = f"HEAVY = {NODE_FREE!r}\n" + _NODE_IMPORTS
+    res = subprocess.run([sys.executable, "-c", code], input=json.dumps(todo), cwd=ROOT,
+                         capture_output=True, text=True, timeout=300, check=False)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert json.loads(res.stdout.strip().splitlines()[-1]) == {}
+
+
 def _numba() -> bool:
     import importlib.util
 

@@ -13,7 +13,8 @@ Resampling, in two steps:
    regular stamps at the same rate the grid *is* the stamps and the values pass unchanged; it
    only matters for jittery wall-clock stamps and fills dropped samples (a warning says how
    many).
-2. ``scipy.signal.resample_poly(x, up, down)``: a linear-phase Kaiser-window FIR at the lower
+2. :func:`.polyphase.resample_poly` (``scipy.signal.resample_poly`` on numpy alone, so the
+   plant node need not import scipy.signal): a linear-phase Kaiser-window FIR at the lower
    of the two Nyquist frequencies. Downsampling thus removes content above the new Nyquist
    instead of aliasing it into the isolation band (a plain interpolation or decimation would
    fold it down), and upsampling is band-limited interpolation, without the sinc² droop and
@@ -31,9 +32,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 from rosbags.rosbag2 import Reader
-from scipy import signal
 
 from dcsms_ros import cdr
+from dcsms_ros.analysis.polyphase import resample_poly
 from dcsms_ros.core import topics
 from dcsms_ros.errors import BagError
 
@@ -136,7 +137,7 @@ def resample(stamp_ns: np.ndarray, values: Array, rate_hz: float) -> Array:
         xg = np.column_stack([np.interp(grid, rel, x[:, j]) for j in range(x.shape[1])])
     if up == down:
         return np.ascontiguousarray(xg)
-    return np.asarray(signal.resample_poly(xg, up, down, axis=0, padtype="line"))
+    return resample_poly(xg, up, down)
 
 
 def load_ground(bag: str | Path, topic: str | None, rate_hz: float, dof: int) -> Array:

@@ -1,6 +1,7 @@
 """Is a configuration safe to run? Stability, margins and predicted actuator forces per mode.
 
-Everything is judged on the loop that runs (:mod:`.loop_model`): the closed-loop poles, the
+Everything is judged on the loop that runs (:mod:`.loop_model`): the closed-loop poles
+(:mod:`.loop_stability`), the
 loop-at-a-time and per-stage disk margins (:mod:`.margins`) and the actuator forces predicted
 from the configured disturbances (:mod:`.spectra`), whose peak is taken as 4 x RMS (a Gaussian
 force exceeds it 0.006 % of the time) and compared with each actuator's limit.
@@ -17,30 +18,15 @@ from numpy.typing import NDArray
 
 from dcsms_ros.core import analytics
 from dcsms_ros.core.config import SystemConfig
-from dcsms_ros.core.controllers import Allocator
-from dcsms_ros.core.loop_model import loop_model, pole_parts, poles, s_plane
+from dcsms_ros.core.controllers import actuator_limits
+from dcsms_ros.core.loop_model import loop_model, pole_parts, s_plane
+from dcsms_ros.core.loop_stability import Stability, stability, unstable_reason
 from dcsms_ros.core.margins import DiskMargin, LoopMargin, margins
 from dcsms_ros.core.modes import ALL_MODES, Mode
 from dcsms_ros.core.safety import MIN_GM_DB, MIN_PM_DEG, PEAK_FACTOR
 from dcsms_ros.core.spectra import rms, shaped
 
 Array = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class Stability:
-    """Poles of the discrete closed loop: ``worst`` is the pole of largest ``|z|``;
-    ``s_hz`` maps poles to ``fs ln(z) / 2 pi`` (Hz, as the paper prints eigenvalues)."""
-
-    stable: bool
-    worst_z: complex
-    worst_s_hz: complex
-    unstable_s_hz: tuple[complex, ...]
-
-    @property
-    def growth_per_s(self) -> float:
-        """Exponential growth (> 0) or decay (< 0) rate of the worst pole, 1/s."""
-        return 2.0 * math.pi * self.worst_s_hz.real
 
 
 @dataclass(frozen=True)
@@ -92,18 +78,6 @@ def oscillatory(poles: list[Pole]) -> list[Pole]:
     return sorted(out, key=lambda p: p.frequency_hz)
 
 
-def stability(cfg: SystemConfig, mode: Mode) -> Stability:
-    """Poles of ``mode``'s loop as it runs."""
-    m = loop_model(cfg, mode)
-    z = poles(m)
-    s = s_plane(z, m.fs) / (2.0 * math.pi)
-    i = int(np.argmax(np.abs(z)))
-    bad = np.abs(z) >= 1.0
-    order = np.argsort(-np.abs(z[bad]))
-    return Stability(not bool(bad.any()), complex(z[i]), complex(s[i]),
-                     tuple(complex(x) for x in s[bad][order]))
-
-
 @dataclass(frozen=True)
 class ModeCheck:
     """Verdict on one mode; ``failures`` says why it is not safe (empty: safe)."""
@@ -125,16 +99,6 @@ class ModeCheck:
     def force_peak_n(self) -> Array:
         """Predicted peak force per actuator, N (:data:`PEAK_FACTOR` x RMS)."""
         return PEAK_FACTOR * self.force_rms_n
-
-
-def actuator_limits(cfg: SystemConfig) -> tuple[list[str], Array]:
-    """Every actuator's name (``stage<i>/a<j>``) and force limit (N), in input order."""
-    names, lim = [], []
-    for i, st in enumerate(cfg.plant.stages, 1):
-        a = Allocator(cfg, i)
-        names += [f"{st.name}/a{j}" for j in range(a.n_act)]
-        lim += [a.limit] * a.n_act
-    return names, np.asarray(lim)
 
 
 def check_mode(cfg: SystemConfig, mode: Mode, min_gm_db: float = MIN_GM_DB,
@@ -170,16 +134,6 @@ def check_config(cfg: SystemConfig, modes: Sequence[Mode] = ALL_MODES,
                  ) -> list[ModeCheck]:
     """:func:`check_mode` for each of ``modes`` (default all six)."""
     return [check_mode(cfg, m, min_gm_db, min_pm_deg) for m in modes]
-
-
-def unstable_reason(cfg: SystemConfig, mode: Mode) -> str | None:
-    """None when ``mode`` is stable as it runs, else a one-line reason naming the pole."""
-    st = stability(cfg, mode)
-    if st.stable:
-        return None
-    p = st.worst_s_hz
-    return (f"{mode.label} is unstable with this configuration: closed-loop pole at "
-            f"{p.real:+.4f} {p.imag:+.4f}j Hz (growth {st.growth_per_s:.3g} /s)")
 
 
 __all__ = ["MIN_GM_DB", "MIN_PM_DEG", "PEAK_FACTOR", "ModeCheck", "Pole", "Stability",

@@ -9,8 +9,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from dcsms_ros.core.check import actuator_limits
 from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.controllers import actuator_limits
+from dcsms_ros.core.sosfilter import BlockFilter, sosfilt
 from dcsms_ros.core.supervisor import Checkpoint
 from dcsms_ros.core.trip import CHECK_PERIOD_S, TripChecker, TripMonitor
 
@@ -32,8 +33,8 @@ class CheckpointFeed:
         The trip band and window (``control``), the actuator limits, the sample rate.
     """
 
-    def __init__(self, cfg: SystemConfig) -> None:
-        self.ground = TripMonitor(cfg.control, cfg.plant.rate_hz, cfg.plant.dof)
+    def __init__(self, cfg: SystemConfig, block_filter: BlockFilter = sosfilt) -> None:
+        self.ground = TripMonitor(cfg.control, cfg.plant.rate_hz, cfg.plant.dof, block_filter)
         self.limit = actuator_limits(cfg)[1]
         self.dt = cfg.plant.dt
         self.window = max(1, int(round(cfg.control.trip_window_s / CHECK_PERIOD_S)))

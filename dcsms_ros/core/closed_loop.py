@@ -18,7 +18,7 @@ import scipy.linalg
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import suspension_totals  # same FF axis totals as the loop
 from dcsms_ros.core.filters import feedback_tf, feedforward_tf
-from dcsms_ros.core.lti import Array, ss_to_tf
+from dcsms_ros.core.lti import Array, as_tf, ss_to_tf
 from dcsms_ros.core.model import input_slices, plant_state_space, wrench_input_matrix
 from dcsms_ros.core.modes import (
     FEEDBACK,
@@ -63,10 +63,6 @@ class Link:
     dst: int
 
 
-def _is_zero(tf: Any) -> bool:
-    return not np.any(np.asarray(tf.num[0][0], dtype=float))
-
-
 def controller_links(cfg: SystemConfig, mode: Mode, sensors: bool = False) -> list[Link]:
     """Every non-zero SISO path of the controllers ``mode`` enables (N-stage aware)."""
     dof, n = cfg.plant.dof, cfg.plant.num_stages
@@ -80,21 +76,22 @@ def controller_links(cfg: SystemConfig, mode: Mode, sensors: bool = False) -> li
             continue
         for a, a6 in axes:
             tf = feedback_tf(cfg.feedback[i - 1], a6)
-            if not _is_zero(tf):
-                links.append(Link(name, FEEDBACK, tf, (i - 1) * dof + a, (i - 1) * dof + a))
+            if not tf.is_zero():
+                links.append(Link(name, FEEDBACK, as_tf(tf), (i - 1) * dof + a,
+                                  (i - 1) * dof + a))
     if FF_STAGE1 in enabled and cfg.feedforward.gain != 0.0:
         totals = suspension_totals(cfg, 1)
         for a, a6 in axes:
             if a6 < 3 and (totals[a6][0] or totals[a6][1]):
-                links.append(Link(FF_STAGE1, FEEDFORWARD, feedforward_tf(cfg.feedforward,
-                                  *totals[a6]), a, a))
+                links.append(Link(FF_STAGE1, FEEDFORWARD, as_tf(feedforward_tf(
+                    cfg.feedforward, *totals[a6])), a, a))
     if sensor is not None:
         links = [Link(k.controller, k.kind, k.tf * sensor, k.src, k.dst) for k in links]
     return links
 
 
 def _sensor_tf(cfg: SystemConfig) -> Any:
-    return geophone_tf(cfg.sensors) * extension_tf(cfg.sensors)
+    return as_tf(geophone_tf(cfg.sensors) * extension_tf(cfg.sensors))
 
 
 def _controller_ss(links: list[Link]) -> tuple[Array, Array, Array, Array]:

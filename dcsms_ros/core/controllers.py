@@ -340,5 +340,23 @@ def retuned(old: FeedbackLoop | FeedforwardLoop, cfg: SystemConfig, controller_i
     return new
 
 
-__all__ = ["Allocator", "Fader", "FeedbackLoop", "FeedforwardLoop", "make_controller",
-           "retuned", "suspension_totals"]
+def actuator_limits(cfg: SystemConfig) -> tuple[list[str], Array]:
+    """Every actuator's name (``stage<i>/a<j>``) and force limit (N), in input order."""
+    names, lim = [], []
+    for i, st in enumerate(cfg.plant.stages, 1):
+        a = Allocator(cfg, i)
+        names += [f"{st.name}/a{j}" for j in range(a.n_act)]
+        lim += [a.limit] * a.n_act
+    return names, np.asarray(lim)
+
+
+__all__ = [
+    "Allocator",
+    "Fader",
+    "FeedbackLoop",
+    "FeedforwardLoop",
+    "actuator_limits",
+    "make_controller",
+    "retuned",
+    "suspension_totals",
+]

@@ -13,9 +13,10 @@ import warnings
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import signal
 
 from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.filterdesign import butter_sos
+from dcsms_ros.core.sosfilter import BlockFilter, sosfilt
 from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -38,12 +39,10 @@ def band_sos(band_hz: tuple[float, float] | ArrayLike, fs: float) -> Array | Non
     if lo <= 0.0 and hi >= nyq:
         return None
     if lo <= 0.0:
-        sos = signal.butter(ORDER, hi, btype="lowpass", fs=fs, output="sos")
-    elif hi >= nyq:
-        sos = signal.butter(ORDER, lo, btype="highpass", fs=fs, output="sos")
-    else:
-        sos = signal.butter(ORDER, [lo, hi], btype="bandpass", fs=fs, output="sos")
-    return np.asarray(sos, dtype=np.float64)
+        return butter_sos(ORDER, hi, "lowpass", fs)
+    if hi >= nyq:
+        return butter_sos(ORDER, lo, "highpass", fs)
+    return butter_sos(ORDER, (lo, hi), "bandpass", fs)
 
 
 def _slowest_pole_radius(sos: Array) -> float:
@@ -66,8 +65,8 @@ def _noise_gain(key: bytes) -> float:
     n = 64 if r <= 0.0 else int(math.ceil(math.log(1e-16) / (2.0 * math.log(r)))) + 64
     imp = np.zeros(min(n, 10_000_000))
     imp[0] = 1.0
-    h = signal.sosfilt(sos, imp)
-    return float(np.dot(h, h))
+    h, _ = sosfilt(sos, imp[:, None], np.zeros((sos.shape[0], 2, 1)))
+    return float(np.dot(h[:, 0], h[:, 0]))
 
 
 class BandNoise:
@@ -85,6 +84,9 @@ class BandNoise:
     rng : numpy.random.Generator
     warm : bool
         Warm the filter up (False: only its shape is wanted, no sample will be drawn).
+    block_filter : callable
+        Runs the band-pass over a block (:data:`.sosfilter.BlockFilter`; the batch engine
+        passes a compiled one with the same bits).
 
     Notes
     -----
@@ -93,8 +95,10 @@ class BandNoise:
     """
 
     def __init__(self, rms: float | ArrayLike, band_hz: tuple[float, float] | ArrayLike,
-                 fs: float, channels: int, rng: np.random.Generator, warm: bool = True) -> None:
+                 fs: float, channels: int, rng: np.random.Generator, warm: bool = True,
+                 block_filter: BlockFilter = sosfilt) -> None:
         self.channels = int(channels)
+        self._run = block_filter
         self._rng = rng
         self._sos = band_sos(band_hz, fs)
         self._scale = (np.broadcast_to(np.asarray(rms, float), (self.channels,))
@@ -121,8 +125,8 @@ class BandNoise:
 
     def _refill(self) -> None:
         w = self._rng.standard_normal((BLOCK, self.channels))
-        if self._sos is not None:
-            w, self._zi = signal.sosfilt(self._sos, w, axis=0, zi=self._zi)
+        if self._sos is not None and self._zi is not None:
+            w, self._zi = self._run(self._sos, w, self._zi)
         w *= self._scale
         w.flags.writeable = False  # rows are handed out as views
         self._buf = w
@@ -169,11 +173,13 @@ class Disturbances:
     warm : bool
         False builds the sources without warming their filters up: for their shapes only
         (:mod:`.spectra`); drawing from them then starts with a transient.
+    block_filter : callable
+        As for :class:`BandNoise`.
     """
 
     def __init__(self, cfg: SystemConfig, seed: int | np.random.SeedSequence | None = None,
                  ground: ArrayLike | None = None, table: ArrayLike | None = None,
-                 warm: bool = True) -> None:
+                 warm: bool = True, block_filter: BlockFilter = sosfilt) -> None:
         d = cfg.disturbance
         fs = cfg.plant.rate_hz
         self.dof = cfg.plant.dof
@@ -197,9 +203,10 @@ class Disturbances:
         else:
             rms = d.ground_rms_mps[2:3] if self.dof == 1 else d.ground_rms_mps
             self._gnoise = BandNoise(rms, d.ground_band_hz, fs, self._ntrans,
-                                     np.random.default_rng(g_ss), warm)
+                                     np.random.default_rng(g_ss), warm, block_filter)
         self._fnoise = BandNoise(d.force_rms_n, d.force_band_hz, fs,
-                                 self.num_stages * self._ntrans, np.random.default_rng(f_ss), warm)
+                                 self.num_stages * self._ntrans, np.random.default_rng(f_ss), warm,
+                                 block_filter)
         self._table: Array | None = None
         if table is not None:
             tab = np.asarray(table, dtype=np.float64)

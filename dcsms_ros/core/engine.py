@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dcsms_ros.core import fastsim
+from dcsms_ros.core import compiledsos, fastsim
 from dcsms_ros.core.checkpoints import CheckpointFeed
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller
@@ -107,11 +107,13 @@ class Simulation:
         if supervisor is None and cfg.supervisor.enabled:
             supervisor = make_supervisor(cfg, mode, allow_unstable)
         self.supervisor = supervisor if trip else None
-        self._feed = CheckpointFeed(cfg) if self.supervisor is not None else None
+        self._feed = (CheckpointFeed(cfg, compiledsos.sosfilt) if self.supervisor is not None
+                      else None)
         n = cfg.plant.num_stages
         if plant is not None:
             check_plant(cfg, plant)
-        self.sim = PlantSimulator(plant or cfg, seed=seed, ground=ground, table=table)
+        self.sim = PlantSimulator(plant or cfg, seed=seed, ground=ground, table=table,
+                                  block_filter=compiledsos.sosfilt)
         self.excite = _excite_array(cfg, excite)
         self._exc_offset = 0  # sample of the first row of self.excite
         self._exc_stop: int | None = None  # first sample without excitation (a trip)
@@ -125,8 +127,8 @@ class Simulation:
         self._ei = 0
         self.modes: list[tuple[int, str]] = [(0, mode.label)]
         self.refused: list[tuple[int, str]] = []
-        self.checker = (TripChecker(cfg.control, cfg.plant.rate_hz, n, cfg.plant.dof)
-                        if trip else None)
+        self.checker = (TripChecker(cfg.control, cfg.plant.rate_hz, n, cfg.plant.dof,
+                                    compiledsos.sosfilt) if trip else None)
         self.trip: Trip | None = None
         self.k = 0
         if fast is None:

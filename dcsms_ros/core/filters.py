@@ -1,56 +1,48 @@
-"""Continuous controller filters (python-control) and their discrete second-order sections.
+"""Continuous controller filters and their discrete second-order sections, on numpy alone.
 
-Designs are continuous transfer functions so that :mod:`.analytics` analyses exactly what the
-loops run; :func:`to_sos` turns one into Tustin second-order sections, which
+Designs are continuous transfer functions (:class:`.filterdesign.Rational`) so that
+:mod:`.analytics` analyses exactly what the loops run (it wraps them into python-control);
+:func:`to_sos` turns one into Tustin second-order sections, which
 :class:`.sosfilter.SosFilter` runs sample by sample.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
 
-import control as ct
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-from scipy import signal
+from numpy.typing import NDArray
 
 from dcsms_ros.core.config import FeedbackConfig, FeedforwardConfig
+from dcsms_ros.core.filterdesign import (
+    Rational,
+    bilinear,
+    butter_analog,
+    tf_to_zpk,
+    unity,
+    zpk_to_sos,
+)
 from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
-TF = Any  # control.TransferFunction (python-control ships no type stubs)
+TF = Rational
 
 #: A pass-through second-order section ``[b0 b1 b2 a0 a1 a2]``.
 IDENTITY_SECTION = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 0.0])
-
-
-def _tf(num: ArrayLike, den: ArrayLike) -> TF:
-    return ct.tf(np.atleast_1d(np.asarray(num, float)), np.atleast_1d(np.asarray(den, float)))
-
-
-def unity() -> TF:
-    """The identity transfer function 1."""
-    return _tf([1.0], [1.0])
-
-
-def _butter_ba(order: int, corner_hz: float, btype: str) -> tuple[Array, Array]:
-    b, a = signal.butter(int(order), 2.0 * math.pi * corner_hz, btype=btype, analog=True)
-    return np.asarray(b, float), np.asarray(a, float)
 
 
 def highpass(order: int, corner_hz: float) -> TF:
     """Butterworth high-pass ``s^n / B_n(s)`` with -3 dB corner ``corner_hz`` (Hz); 0 -> 1."""
     if corner_hz <= 0.0:
         return unity()
-    return _tf(*_butter_ba(order, corner_hz, "highpass"))
+    return butter_analog(order, 2.0 * math.pi * corner_hz, "highpass")
 
 
 def lowpass(order: int, corner_hz: float) -> TF:
     """Butterworth low-pass of ``order`` with -3 dB corner ``corner_hz`` (Hz); 0 -> 1."""
     if corner_hz <= 0.0:
         return unity()
-    return _tf(*_butter_ba(order, corner_hz, "lowpass"))
+    return butter_analog(order, 2.0 * math.pi * corner_hz, "lowpass")
 
 
 def notch(center_hz: float, q: float) -> TF:
@@ -58,7 +50,7 @@ def notch(center_hz: float, q: float) -> TF:
     if center_hz <= 0.0:
         return unity()
     w = 2.0 * math.pi * center_hz
-    return _tf([1.0, 0.0, w * w], [1.0, w / q, w * w])
+    return Rational.of([1.0, 0.0, w * w], [1.0, w / q, w * w])
 
 
 def leadlag(zero_hz: float, pole_hz: float) -> TF:
@@ -74,7 +66,7 @@ def leadlag(zero_hz: float, pole_hz: float) -> TF:
     if pole_hz <= 0.0:
         raise ConfigError(f"lead-lag: lead_hz={zero_hz:g} needs lag_hz > 0 (got {pole_hz:g})")
     wz, wp = 2.0 * math.pi * zero_hz, 2.0 * math.pi * pole_hz
-    return _tf([1.0 / wz, 1.0], [1.0 / wp, 1.0])
+    return Rational.of([1.0 / wz, 1.0], [1.0 / wp, 1.0])
 
 
 def feedback_tf(fb: FeedbackConfig, axis: int) -> TF:
@@ -89,7 +81,7 @@ def feedback_tf(fb: FeedbackConfig, axis: int) -> TF:
 
     Returns
     -------
-    control.TransferFunction
+    Rational
         Velocity (m/s or rad/s) -> force (N or N*m). The loop applies ``-feedback_tf * v``.
     """
     g = float(fb.gain[axis])
@@ -112,25 +104,23 @@ def feedforward_tf(ff: FeedforwardConfig, c1: float, k1: float) -> TF:
 
     Returns
     -------
-    control.TransferFunction
+    Rational
         Ground velocity (m/s) -> force (N). The loop applies ``-feedforward_tf * v_b``.
     """
     if ff.highpass_hz <= 0.0:
         raise ConfigError("feedforward.highpass_hz must be > 0 to cancel the 1/s of k1/s")
-    b, a = _butter_ba(ff.highpass_order, ff.highpass_hz, "highpass")
-    b = np.trim_zeros(b, "f")
+    hp = butter_analog(ff.highpass_order, 2.0 * math.pi * ff.highpass_hz, "highpass")
+    b, a = hp.num, hp.den
     if b.size < 2 or np.any(b[1:]):
         raise ConfigError("feedforward.highpass_order must be >= 1")
     # b = b0 * s^n: dropping one trailing zero divides by s, cancelling the 1/s of k1/s exactly
     num = ff.gain * np.polymul([c1, k1], b[:-1])
-    return _tf(num, a) * lowpass(ff.lowpass_order, ff.lowpass_hz)
+    return Rational.of(num, a) * lowpass(ff.lowpass_order, ff.lowpass_hz)
 
 
 def _num_den(tf: TF) -> tuple[Array, Array]:
-    if tf.ninputs != 1 or tf.noutputs != 1:
-        raise ValueError("to_sos: only SISO transfer functions are supported")
-    num = np.trim_zeros(np.asarray(tf.num[0][0], dtype=np.float64), "f")
-    den = np.trim_zeros(np.asarray(tf.den[0][0], dtype=np.float64), "f")
+    num = np.trim_zeros(np.asarray(tf.num, dtype=np.float64), "f")
+    den = np.trim_zeros(np.asarray(tf.den, dtype=np.float64), "f")
     return (num if num.size else np.zeros(1)), den
 
 
@@ -139,8 +129,8 @@ def to_sos(tf: TF, fs: float, prewarp_hz: float = 0.0) -> Array:
 
     Parameters
     ----------
-    tf : control.TransferFunction
-        Continuous SISO, proper (``deg num <= deg den``).
+    tf : Rational
+        Continuous, proper (``deg num <= deg den``).
     fs : float
         Sample rate in Hz.
     prewarp_hz : float
@@ -155,7 +145,7 @@ def to_sos(tf: TF, fs: float, prewarp_hz: float = 0.0) -> Array:
     Raises
     ------
     ValueError
-        For an improper or MIMO transfer function.
+        For an improper transfer function.
     """
     num, den = _num_den(tf)
     if not np.any(num):
@@ -167,16 +157,14 @@ def to_sos(tf: TF, fs: float, prewarp_hz: float = 0.0) -> Array:
         sec = IDENTITY_SECTION.copy()
         sec[0] = num[0] / den[0]
         return sec[None, :]
-    z, p, k = signal.tf2zpk(num, den)
+    z, p, k = tf_to_zpk(num, den)
     fs_eff = fs
     if prewarp_hz > 0.0:
         if prewarp_hz >= fs / 2.0:
             raise ValueError(f"to_sos: prewarp_hz={prewarp_hz:g} must be below fs/2")
         w0 = 2.0 * math.pi * prewarp_hz
         fs_eff = w0 / (2.0 * math.tan(w0 / (2.0 * fs)))
-    zd, pd, kd = signal.bilinear_zpk(z, p, k, fs_eff)
-    sos = signal.zpk2sos(zd, pd, kd)
-    return np.asarray(np.real(sos), dtype=np.float64)
+    return zpk_to_sos(*bilinear(z, p, k, fs_eff))
 
 
 def feedback_sos(fb: FeedbackConfig, axis: int, fs: float) -> Array:

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import sosfreqz
 
 from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.filterdesign import sos_response
 from dcsms_ros.core.loop_model import freq_response, loop_model
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.core.trip import TripMonitor
@@ -32,7 +32,7 @@ def floor_gain(cfg: SystemConfig, mode: Mode) -> Array:
     fs = cfg.plant.rate_hz
     f = np.geomspace(FMIN_HZ, 0.499 * fs, POINTS)
     sos = TripMonitor(cfg.control, fs, 1).sos
-    _, b = sosfreqz(sos, worN=f, fs=fs)
+    b = sos_response(sos, f, fs)
     w = np.abs(b) ** 2
     h = freq_response(loop_model(cfg, mode).select("ground", "velocity"), f)  # (F, N*dof, dof)
     power = np.trapezoid((np.abs(h) ** 2).sum(axis=2) * w[:, None], f, axis=0)

@@ -17,6 +17,8 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
+from dcsms_ros.core.filterdesign import Rational
+
 Array = NDArray[np.float64]
 CArray = NDArray[np.complex128]
 
@@ -24,10 +26,13 @@ CArray = NDArray[np.complex128]
 CANCEL_TOL = 1e-6
 
 
-def _as_tf(h: Any) -> Any:
-    """A scalar, ``(num, den)`` pair or LTI system as a python-control TransferFunction."""
+def as_tf(h: Any) -> Any:
+    """A scalar, :class:`.filterdesign.Rational` or LTI system as a python-control
+    TransferFunction (same coefficients, same units)."""
     if isinstance(h, ct.TransferFunction):
         return h
+    if isinstance(h, Rational):
+        return ct.tf(h.num, h.den)
     if isinstance(h, ct.StateSpace):
         return ss_to_tf(h.A, h.B, h.C, h.D)
     return ct.tf([float(h)], [1.0])
@@ -35,7 +40,7 @@ def _as_tf(h: Any) -> Any:
 
 def num_den(h: Any) -> tuple[Array, Array]:
     """Numerator and denominator coefficient arrays (highest power first) of a SISO H."""
-    t = _as_tf(h)
+    t = as_tf(h)
     return (np.asarray(t.num[0][0], dtype=float).copy(),
             np.asarray(t.den[0][0], dtype=float).copy())
 

@@ -9,12 +9,12 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import control as ct
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from dcsms_ros.core.config import SensorConfig, SystemConfig
-from dcsms_ros.core.filters import TF, to_sos, unity
+from dcsms_ros.core.filterdesign import Rational, unity
+from dcsms_ros.core.filters import TF, to_sos
 from dcsms_ros.core.geometry import sensor_matrix
 from dcsms_ros.core.sosfilter import SosFilter
 from dcsms_ros.core.topics import body_names
@@ -34,7 +34,7 @@ def geophone_tf(s: SensorConfig) -> TF:
     if not s.dynamics:
         return unity()
     wn = 2.0 * math.pi * s.natural_frequency_hz
-    return ct.tf([1.0, 0.0, 0.0], [1.0, 2.0 * s.damping_ratio * wn, wn * wn])
+    return Rational.of([1.0, 0.0, 0.0], [1.0, 2.0 * s.damping_ratio * wn, wn * wn])
 
 
 def extension_tf(s: SensorConfig) -> TF:
@@ -48,8 +48,8 @@ def extension_tf(s: SensorConfig) -> TF:
         return unity()
     wn = 2.0 * math.pi * s.natural_frequency_hz
     we = 2.0 * math.pi * s.extension_hz
-    return ct.tf([1.0, 2.0 * s.damping_ratio * wn, wn * wn],
-                 [1.0, 2.0 * s.extension_damping * we, we * we])
+    return Rational.of([1.0, 2.0 * s.damping_ratio * wn, wn * wn],
+                       [1.0, 2.0 * s.extension_damping * we, we * we])
 
 
 class Channel(NamedTuple):

@@ -18,6 +18,7 @@ from dcsms_ros.core.disturbance import Disturbances
 from dcsms_ros.core.model import DiscretePlant, discretize, plant_state_space
 from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.core.sensors import GeophoneArray, channel_layout, channel_matrix
+from dcsms_ros.core.sosfilter import BlockFilter, sosfilt
 from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -86,15 +87,18 @@ class PlantSimulator:
     disturbances : bool
         False: no ground motion and no table forces at all (and none drawn: a loop model
         only needs the plant's matrices, cheaply).
+    block_filter : callable
+        Runs the disturbances' band-passes (:data:`.sosfilter.BlockFilter`).
     """
 
     def __init__(self, cfg: SystemConfig, seed: int | None = None,
                  ground: Array | None = None, table: Array | None = None,
-                 disturbances: bool = True) -> None:
+                 disturbances: bool = True, block_filter: BlockFilter = sosfilt) -> None:
         self.cfg = cfg
         seed = cfg.disturbance.seed if seed is None else seed
         self.plant = DiscretePlant(discretize(plant_state_space(cfg), cfg.plant.dt))
-        self.disturbances = (Disturbances(cfg, seed=seed, ground=ground, table=table)
+        self.disturbances = (Disturbances(cfg, seed=seed, ground=ground, table=table,
+                                          block_filter=block_filter)
                              if disturbances else None)
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_SENSOR_STREAM,)))
         self.geophones = GeophoneArray(cfg, rng)

@@ -11,9 +11,9 @@ from collections.abc import Callable, Iterator, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from dcsms_ros.core.check import unstable_reason
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.floor import floor_gain
+from dcsms_ros.core.loop_stability import unstable_reason
 from dcsms_ros.core.modes import ALL_MODES, Mode, parse_mode
 from dcsms_ros.core.supervisor import Supervisor, SupervisorSettings
 

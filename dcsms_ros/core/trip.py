@@ -19,9 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import butter, sosfilt, sosfilt_zi
 
 from dcsms_ros.core.config import ControlConfig
+from dcsms_ros.core.filterdesign import butter_sos, sos_steady_state
+from dcsms_ros.core.sosfilter import BlockFilter, sosfilt
 
 Array = NDArray[np.float64]
 
@@ -37,20 +38,25 @@ class TripMonitor:
         Sample rate of the fed signals, Hz.
     channels : int
         Number of signals (e.g. the dof of one stage).
+    block_filter : callable
+        Runs the band-pass over a block (:data:`.sosfilter.BlockFilter`; the batch engine
+        passes a compiled one with the same bits).
     """
 
-    def __init__(self, control: ControlConfig, rate_hz: float, channels: int) -> None:
+    def __init__(self, control: ControlConfig, rate_hz: float, channels: int,
+                 block_filter: BlockFilter = sosfilt) -> None:
+        self._run = block_filter
         lo, hi = control.trip_band_hz
         nyq = rate_hz / 2.0
         # a corner at or above Nyquist, or at 0, degenerates the band-pass to one side
         if hi >= 0.95 * nyq and lo > 0.0:
-            self.sos = butter(2, lo, btype="highpass", fs=rate_hz, output="sos")
+            self.sos = butter_sos(2, lo, "highpass", rate_hz)
         elif lo <= 0.0 and hi < 0.95 * nyq:
-            self.sos = butter(2, hi, btype="lowpass", fs=rate_hz, output="sos")
+            self.sos = butter_sos(2, hi, "lowpass", rate_hz)
         elif lo <= 0.0:
             self.sos = np.array([[1.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
         else:
-            self.sos = butter(2, [lo, hi], btype="bandpass", fs=rate_hz, output="sos")
+            self.sos = butter_sos(2, (lo, hi), "bandpass", rate_hz)
         self.threshold = control.trip_rms_mps
         self.window = max(1, int(round(control.trip_window_s * rate_hz)))
         self.channels = channels
@@ -77,10 +83,10 @@ class TripMonitor:
         if not self._started:
             # start the band-pass in the steady state of the first sample: a velocity offset
             # (sensor drift) must not ring through it as a false trip at start or after a reset
-            self._zi = sosfilt_zi(self.sos)[:, :, None] * x[0][None, None, :]
+            self._zi = sos_steady_state(self.sos)[:, :, None] * x[0][None, None, :]
             self._started = True
-        y, self._zi = sosfilt(self.sos, x, axis=0, zi=self._zi)
-        return np.asarray(y)
+        y, self._zi = self._run(self.sos, x, self._zi)
+        return y
 
     def update(self, block: Array) -> Array:
         """Feed samples ``(K, channels)`` (m/s); return the RMS over the last window (m/s)."""
@@ -138,13 +144,16 @@ class TripChecker:
         Sample rate, Hz.
     num_stages, dof : int
         Shape of the stage velocities fed.
+    block_filter : callable
+        As for :class:`TripMonitor`.
     """
 
     def __init__(self, control: ControlConfig, rate_hz: float, num_stages: int,
-                 dof: int) -> None:
+                 dof: int, block_filter: BlockFilter = sosfilt) -> None:
         self.control = control
         self.every = check_samples(rate_hz)
-        self.monitors = [TripMonitor(control, rate_hz, dof) for _ in range(num_stages)]
+        self.monitors = [TripMonitor(control, rate_hz, dof, block_filter)
+                         for _ in range(num_stages)]
         self.dof = dof
         self.reset()
 

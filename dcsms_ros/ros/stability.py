@@ -4,7 +4,7 @@ unstable, unless the graph allows it (parameter ``allow_unstable``).
 Design: ``mode_switch`` holds the whole configuration. It declares every parameter, follows
 the tuning changes made on the controller nodes through ``/parameter_events`` and republishes
 the merged configuration on ``<ns>/config`` (transient local). It refuses a switch into a mode
-whose loop has a pole on or outside the unit circle (:func:`dcsms_ros.core.check.
+whose loop has a pole on or outside the unit circle (:func:`dcsms_ros.core.loop_stability.
 unstable_reason` names it), and a change of its own parameters that makes the active mode
 unstable. Each controller knows only its own tuning; its guard listens to ``<ns>/config`` and
 ``<ns>/mode`` (both latched) and vets a change of its parameters against that configuration
@@ -24,8 +24,8 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 from dcsms_ros.core import topics
-from dcsms_ros.core.check import unstable_reason
 from dcsms_ros.core.config import SystemConfig, config_from_flat
+from dcsms_ros.core.loop_stability import unstable_reason
 from dcsms_ros.core.modes import Mode, parse_mode
 from dcsms_ros.core.params_file import parse_params_text
 from dcsms_ros.errors import DcsmsError

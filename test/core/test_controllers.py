@@ -28,7 +28,7 @@ FS = 2000.0
 
 def cresp(tf, f_hz):
     s = 2j * np.pi * np.asarray(f_hz, float)
-    return np.polyval(tf.num[0][0], s) / np.polyval(tf.den[0][0], s)
+    return np.polyval(tf.num, s) / np.polyval(tf.den, s)
 
 
 def sine_gain(loop, f0, amp, axis=0, n=12000, dof=1):

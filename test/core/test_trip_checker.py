@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dcsms_ros.core.compiledsos import sosfilt as compiled
 from dcsms_ros.core.config import ControlConfig
+from dcsms_ros.core.sosfilter import sosfilt
 from dcsms_ros.core.trip import TripChecker, check_samples
 
 
@@ -47,3 +49,13 @@ def test_clone_judges_without_committing():
     _, t1 = trial.push(v[1000:])
     _, t2 = c.push(v[1000:])
     assert t1 == t2 and t1 is not None
+
+
+def test_compiled_block_filter_gives_the_same_trip_bit_for_bit():
+    """The batch engine's compiled block filter and the nodes' Python one: the same trip
+    sample and the same RMS, to the last bit."""
+    v = _velocity(5000, 1000)
+    got = [TripChecker(ControlConfig(), 2000.0, 2, 1, f).push(v) for f in (sosfilt, compiled)]
+    (used_a, trip_a), (used_b, trip_b) = got
+    assert trip_a is not None and trip_b is not None
+    assert (used_a, trip_a.sample, trip_a.rms) == (used_b, trip_b.sample, trip_b.rms)
