@@ -215,7 +215,8 @@ def test_reports_go_out_after_the_lock_and_in_order(ctx) -> None:
             time.sleep(0.01)
         time.sleep(0.2)
         assert node.count == 400 and serial is not None
-        assert len(got) > 400 and got[-1] == 400, (len(got), got[-5:])
+        # the reader keeps the newest 10 (qos.status()): a slow reader skips some, in order
+        assert len(got) > 50 and got[-1] == 400, (len(got), got[-5:])
         assert all(b >= a for a, b in itertools.pairwise(got)), "a report went back"
         timer_runs = serial.calls  # every executor callback was the timer's
         assert timer_runs > 50
