@@ -23,7 +23,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -40,7 +40,6 @@ from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
-from dcsms_ros.ros.msgs import node_status, to_stamp
 from dcsms_ros.ros.params import (
     NodeConfig,
     answerer,
@@ -48,6 +47,7 @@ from dcsms_ros.ros.params import (
     declare_observed,
     declare_schedule,
 )
+from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.runtime import main_for
 
 
@@ -95,7 +95,7 @@ class ExcitationNode(Node, Hosted):
                                       qos.stream_pub(self.lockstep))
         self.answers = answerer(self, self.pub.publish, self.lockstep, [self.pub],
                                 self.observed)
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        self.reports = Reports(self, self.hot)
         self.hot.subscribe(JointState, topics.LOCAL.sensors_raw, self._on_sample,
                            qos.stream_sub(self.lockstep), raw=True)
         # a decision from a named topic, not from another node's diagnostics text
@@ -158,21 +158,18 @@ class ExcitationNode(Node, Hosted):
 
     def _report(self) -> None:
         level = DiagnosticStatus.WARN if self.tripped else DiagnosticStatus.OK
-        arr = DiagnosticArray()
-        arr.header.stamp = to_stamp(max(self.answers.last_ns, 0))
-        arr.status = [node_status(self, level, (
+        self.reports.publish(self.answers.last_ns, [Status(level, (
             "tripped: off" if self.tripped else "active" if self.active else "inactive"), {
             "active": self.active, "spec": " ".join(s.text for s in self.specs),
             "started_at_sample": self.k0 if self.exc is not None else -1,
             "samples": self.samples, "repeats": self.answers.repeats,
-            "out_of_order": self.answers.out_of_order, "tripped": self.tripped})]
-        self.pub_diag.publish(arr)
+            "out_of_order": self.answers.out_of_order, "tripped": self.tripped})])
 
     def final_reports(self) -> list[SamplePublisher]:
         """Publish the final counters; returns the publishers whose readers should
         acknowledge before the node goes (a clean exit loses nothing)."""
         self._report()
-        return [self.pub, self.pub_diag]
+        return [self.pub, self.reports.pub]
 
 
 main = main_for(ExcitationNode)

@@ -31,7 +31,7 @@ import time
 from functools import partial
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import ParameterEvent
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
@@ -52,7 +52,7 @@ from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
-from dcsms_ros.ros.msgs import node_status, sample_ns, to_stamp
+from dcsms_ros.ros.msgs import sample_ns
 from dcsms_ros.ros.params import (
     MUTABLE_PREFIXES,
     SELECTORS,
@@ -60,6 +60,7 @@ from dcsms_ros.ros.params import (
     declare_local,
     declare_schedule,
 )
+from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.runtime import main_for
 from dcsms_ros.ros.stability import StabilityGuard
 
@@ -109,7 +110,7 @@ class ModeSwitchNode(Node, Hosted):
         services = ReentrantCallbackGroup()
         self.pub_mode = self.create_publisher(String, topics.LOCAL.mode, qos.events())
         self.pub_config = self.create_publisher(String, topics.LOCAL.config, qos.latched())
-        self.pub_diag = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.status())
+        self.reports = Reports(self, self.hot)
         self.ctl = ControllerClients(self, self.controllers, services)
         for c in self.controllers:
             self.create_subscription(Int64, topics.LOCAL.boot(c), partial(self._on_boot, c),
@@ -368,12 +369,10 @@ class ModeSwitchNode(Node, Hosted):
             "trip_sample_ns": self.trip_at[1], "allow_unstable": self.guard.allow,
             **self.watch.status()}
         values.update({c: "present" if r else "absent" for c, r in self.ctl.ready.items()})
-        arr = DiagnosticArray()
         # sample time like the other nodes' reports (the node itself runs on the wall clock)
         judged = max(self.watch.feed.judged_ns, 0)
-        arr.header.stamp = to_stamp(judged) if judged else self.get_clock().now().to_msg()
-        arr.status = [node_status(self, level, msg, values)]
-        self.pub_diag.publish(arr)
+        self.reports.publish(judged or self.get_clock().now().nanoseconds,
+                             [Status(level, msg, values)])
 
 
 main = main_for(ModeSwitchNode)
