@@ -26,6 +26,8 @@ setup(
     name=package_name,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
+    # the recorder's Fast DDS profile is read from the package directory (ros/transport.py)
+    package_data={"dcsms_ros.ros": ["*.xml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),

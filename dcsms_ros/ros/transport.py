@@ -1,0 +1,47 @@
+"""How an observer process (the recorder) receives: UDP loopback, never shared memory.
+
+Fast DDS delivers between processes of one host through shared-memory ports. Each port has a
+watchdog: a reader whose listener thread has not run for about a second (a busy recorder,
+descheduled) gets its port marked broken, and the next writer that reaches it re-opens the
+port with a health check that sleeps ``healthy_check_timeout_ms / 3`` = 333 ms in the sending
+thread (Fast DDS 2.14, ``SharedMemGlobal::Port::healthy_check``). That thread holds the
+participant's send lock, so every publish of that process waits, including the plant's hot
+thread: one stall of a third of a second, caused by an observer. Over UDP a reader that falls
+behind only loses datagrams, which the recorder counts; no writer ever waits for it.
+
+rmw_fastrtps builds its own transports under ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (SHM
+and UDP; ``FASTDDS_BUILTIN_TRANSPORTS`` is ignored), but it takes a DataReader's locators from
+the default XML profile. :func:`observe_over_udp` points Fast DDS at ``observer_profile.xml``,
+whose default reader listens on 127.0.0.1 only. It does nothing when the user has a profile
+file of their own, or chose a discovery range beyond this host (a reader on 127.0.0.1 cannot
+hear another host).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import MutableMapping
+from pathlib import Path
+
+from dcsms_ros.rosenv import DEFAULT_RANGE, DISCOVERY_RANGE_VAR
+
+#: The variables Fast DDS reads its XML profiles from (the first one set wins).
+PROFILES_VARS = ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")
+#: The observer's profile, installed with the package.
+OBSERVER_PROFILE = Path(__file__).with_name("observer_profile.xml")
+
+
+def observe_over_udp(env: MutableMapping[str, str] | None = None) -> bool:
+    """Make the DDS readers of this process (``env``: its environment) receive over UDP
+    loopback; call before ``rclpy.init``. True if the profile was set, False if the user's
+    profile file or discovery range takes precedence."""
+    env = os.environ if env is None else env
+    if any(env.get(v) for v in PROFILES_VARS):
+        return False
+    if env.get(DISCOVERY_RANGE_VAR, DEFAULT_RANGE) != DEFAULT_RANGE:
+        return False
+    env[PROFILES_VARS[1]] = str(OBSERVER_PROFILE)
+    return True
+
+
+__all__ = ["OBSERVER_PROFILE", "PROFILES_VARS", "observe_over_udp"]
