@@ -1,13 +1,17 @@
 """How an observer process (the recorder) receives: UDP loopback, never shared memory.
 
-Fast DDS delivers between processes of one host through shared-memory ports. Each port has a
-watchdog: a reader whose listener thread has not run for about a second (a busy recorder,
-descheduled) gets its port marked broken, and the next writer that reaches it re-opens the
-port with a health check that sleeps ``healthy_check_timeout_ms / 3`` = 333 ms in the sending
-thread (Fast DDS 2.14, ``SharedMemGlobal::Port::healthy_check``). That thread holds the
-participant's send lock, so every publish of that process waits, including the plant's hot
-thread: one stall of a third of a second, caused by an observer. Over UDP a reader that falls
-behind only loses datagrams, which the recorder counts; no writer ever waits for it.
+Fast DDS delivers between processes of one host through shared-memory ports, and every writer
+to a port shares its locks and its health checks with the port's reader: Fast DDS 2.14's
+``SharedMemGlobal::Port`` takes an interprocess mutex on each push, and a writer that (re)opens
+a port whose listener has not reported for a while sleeps ``healthy_check_timeout_ms / 3`` =
+333 ms in a health check, while holding its participant's send lock. In recorded real-time
+runs the plant stalled ~333 ms (600-700 late samples) in 10 of 42 runs (three sets, 2026-11-25),
+at the moment the recorder lost ~0.7 s of messages; a diagnostic copy caught the plant's hot
+thread inside ``publish``. Which of the two paths it takes was not caught (Fast DDS logged no
+port failure). With the recorder on UDP the plant stalled in 2 of 40 runs, and a recorder that
+fell behind (17,000-23,000 messages lost in 3 runs) no longer stalled the plant: over UDP a slow
+reader only loses datagrams, which the recorder counts, and no writer waits for it
+(docs/performance.md).
 
 rmw_fastrtps builds its own transports under ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (SHM
 and UDP; ``FASTDDS_BUILTIN_TRANSPORTS`` is ignored), but it takes a DataReader's locators from
