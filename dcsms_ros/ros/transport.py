@@ -9,7 +9,7 @@ runs the plant stalled ~333 ms (600-700 late samples) in 10 of 42 runs (three se
 at the moment the recorder lost ~0.7 s of messages; a diagnostic copy caught the plant's hot
 thread inside ``publish``. Which of the two paths it takes was not caught (Fast DDS logged no
 port failure). With the recorder on UDP the plant stalled in 2 of 40 runs, and a recorder that
-fell behind (17,000-23,000 messages lost in 3 runs) no longer stalled the plant: over UDP a slow
+fell behind (15,000-23,000 messages lost in 3 runs) no longer stalled the plant: over UDP a slow
 reader only loses datagrams, which the recorder counts, and no writer waits for it
 (docs/performance.md).
 
