@@ -4,14 +4,16 @@ Fast DDS delivers between processes of one host through shared-memory ports, and
 to a port shares its locks and its health checks with the port's reader: Fast DDS 2.14's
 ``SharedMemGlobal::Port`` takes an interprocess mutex on each push, and a writer that (re)opens
 a port whose listener has not reported for a while sleeps ``healthy_check_timeout_ms / 3`` =
-333 ms in a health check, while holding its participant's send lock. In recorded real-time
-runs the plant stalled ~333 ms (600-700 late samples) in 10 of 42 runs (three sets, 2026-11-25),
-at the moment the recorder lost ~0.7 s of messages; a diagnostic copy caught the plant's hot
-thread inside ``publish``. Which of the two paths it takes was not caught (Fast DDS logged no
-port failure). With the recorder on UDP the plant stalled in 2 of 40 runs, and a recorder that
-fell behind (15,000-23,000 messages lost in 3 runs) no longer stalled the plant: over UDP a slow
-reader only loses datagrams, which the recorder counts, and no writer waits for it
-(docs/performance.md).
+333 ms in a health check, while holding its participant's send lock: through either path a
+SCHED_FIFO writer (the plant's hot thread) can wait for a descheduled observer. Over UDP a slow
+reader only loses datagrams, which the recorder counts; a writer shares nothing with it.
+
+Measured (docs/performance.md, recorded real-time runs, one process per node): the plant
+stalled ~333 ms in 1 of 10 runs either way in a same-session A/B; pooled over two days, 10 of 42
+runs with shared memory against 4 of 60 over UDP, a difference the day confounds. With UDP, 5 of
+7 recorder losses of >= 14,000 messages came without a plant stall (shared memory: 3 of 9). The
+cost is in the writers: the plant's CPU per sample with recording on is 1.23x that with it off
+(``make bench``; 1.05x before).
 
 rmw_fastrtps builds its own transports under ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (SHM
 and UDP; ``FASTDDS_BUILTIN_TRANSPORTS`` is ignored), but it takes a DataReader's locators from
