@@ -26,7 +26,7 @@ setup(
     name=package_name,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    # the recorder's Fast DDS profile is read from the package directory (ros/transport.py)
+    # the Fast DDS profile of every process is read from the package directory (ros/transport.py)
     package_data={"dcsms_ros.ros": ["*.xml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),

@@ -48,11 +48,9 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise DcsmsError(f"--duration {args.duration}: must be > 0")
     from dcsms_ros.nodes.recorder import record  # noqa: PLC0415 - deferred: ROS
-    from dcsms_ros.ros.transport import observe_over_udp  # noqa: PLC0415 - deferred: ROS
 
     if args.queue_depth is not None and args.queue_depth < 1:
         raise DcsmsError(f"--queue-depth {args.queue_depth}: must be >= 1")
-    observe_over_udp()  # before the context: a recorder that falls behind never stalls a writer
     rec = record(str(args.out), args.topics, args.storage, args.duration, args=[],
                  queue_depth=args.queue_depth)
     if args.json:

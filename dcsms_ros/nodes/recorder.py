@@ -54,7 +54,6 @@ from dcsms_ros.errors import BagError, DcsmsError
 from dcsms_ros.ros.connectivity import has_reader
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
 from dcsms_ros.ros.hotpath import DetachedGroup, DrivenContext
-from dcsms_ros.ros.transport import observe_over_udp
 
 NODE_NAME = "dcsms_recorder"
 DEFAULT_TOPICS = ("/dcsms/*",)
@@ -366,7 +365,6 @@ def recorder_ready(node: Node, topics: Sequence[str]) -> bool:
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run dcsms_ros recorder --ros-args -p out:=BAG``: exit 0 after a signal."""
-    observe_over_udp()  # a recorder that falls behind loses messages, never stalls a writer
     try:
         report = record("", args=args if args is not None else sys.argv)
     except STOP_EXCEPTIONS:

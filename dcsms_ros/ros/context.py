@@ -8,6 +8,10 @@ Jazzy's rules in one place:
 
 - Discovery stays on this machine unless the user chose a range
   (:func:`dcsms_ros.rosenv.keep_discovery_local`), set before the first participant exists.
+- Every participant is reached over UDP loopback only, never through a Fast DDS
+  shared-memory port (:func:`.transport.loopback_over_udp`), also set before the first
+  participant exists: a first send to a shared-memory port can block the sender's whole
+  process for 333 ms.
 - ``rclpy.init()`` is not a context manager; :func:`ros_context` is, and calls
   ``rclpy.try_shutdown`` on its own :class:`~rclpy.context.Context` however the block ends.
 - rclpy's signal handlers are never installed (``SignalHandlerOptions.NO``): on SIGINT they shut
@@ -37,6 +41,7 @@ from rclpy.context import Context
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.signals import SignalHandlerOptions
 
+from dcsms_ros.ros.transport import loopback_over_udp
 from dcsms_ros.rosenv import keep_discovery_local
 
 #: Exceptions that end a ROS process normally: Ctrl-C where rclpy or Python raised it, and a
@@ -104,6 +109,7 @@ def ros_context(args: Sequence[str] | None = None, signals: bool = False,
     nodes must be destroyed inside the block, before the context goes.
     """
     keep_discovery_local()
+    loopback_over_udp()
     session = RosSession(context if context is not None else Context())
     old = {s: signal.signal(s, session.stop) for s in STOP_SIGNALS} if signals else {}
     try:

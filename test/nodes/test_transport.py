@@ -1,8 +1,12 @@
-"""An observer process receives over UDP loopback, at its full depth (ros/transport.py).
+"""The package's processes meet over UDP loopback, never shared memory (ros/transport.py).
 
-A reader process with :func:`observe_over_udp` and one without it, over real DDS: the thread
-that delivers the samples (Fast DDS names them ``dds.shm.<port>`` and ``dds.udp.<port>``) is
-told apart by its CPU time, and the keep-last depth that holds is counted.
+A writer process and a reader process, both started through :func:`ros_context` as every
+process of the package is, over real DDS: what each maps of Fast DDS's shared-memory ports
+(``fastrtps_port*``), which DDS thread delivers the reader's samples (Fast DDS names them
+``dds.shm.<port>`` and ``dds.udp.<port>``; told apart by their CPU time) and the keep-last depth
+that holds. A process with a profile file of the user's own (Fast DDS's defaults, as a tool
+outside the package has) shows the shared-memory path, with its port health check, that the
+package avoids.
 """
 
 from __future__ import annotations
@@ -11,106 +15,129 @@ import json
 import os
 import subprocess
 import sys
-import time
+from pathlib import Path
 
 import pytest
 
-from dcsms_ros.ros.transport import OBSERVER_PROFILE, PROFILES_VARS, observe_over_udp
+from dcsms_ros.ros.transport import PROFILE, PROFILES_VARS, loopback_over_udp
 from dcsms_ros.rosenv import DISCOVERY_RANGE_VAR
 
-rclpy = pytest.importorskip("rclpy")
-from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from std_msgs.msg import String
+pytest.importorskip("rclpy")
 
-TOPIC = "/dcsms_test/observed"
+TOPIC = "/dcsms_test/loopback"
 SENT = 3000
 DEPTH = 2000  # above Fast DDS's default max_samples_per_instance (400), which it warns about
 
-# A reader that does not take until the writer is done: its history keeps the newest DEPTH.
-# It prints which DDS threads worked.
-READER = f"""
-import json, os, sys, time
-import rclpy
+COMMON = """
+import json, os, re, sys, time
+from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
-from dcsms_ros.ros.transport import observe_over_udp
-observed = observe_over_udp() if sys.argv[1] == "observer" else False
-rclpy.init()
-node = rclpy.create_node("transport_reader")
-sub = node.create_subscription(String, "{TOPIC}", lambda m: None,
-                               QoSProfile(depth={DEPTH}, reliability=ReliabilityPolicy.RELIABLE))
+from dcsms_ros.ros.context import ros_context
 
-def cpu():
-    out = {{}}
+def shm_ports():
+    return sorted(set(re.findall(r"fastrtps_(port\\d+)", open("/proc/self/maps").read())))
+
+def thread_cpu():
+    out = {}
     for t in os.listdir("/proc/self/task"):
-        name = open(f"/proc/self/task/{{t}}/comm").read().strip()
+        name = open(f"/proc/self/task/{t}/comm").read().strip()
         kind = name.split(".")[1] if name.startswith("dds.") else None
         if kind in ("shm", "udp"):
-            ns = int(open(f"/proc/self/task/{{t}}/schedstat").read().split()[0])
+            ns = int(open(f"/proc/self/task/{t}/schedstat").read().split()[0])
             out[kind] = out.get(kind, 0) + ns
     return out
 
-print("ready", flush=True)
-before = cpu()
-sys.stdin.readline()  # the writer is done
-after = cpu()
-kept = 0
-while sub.handle.take_message(sub.msg_type, sub.raw) is not None:
-    kept += 1
-print(json.dumps({{"observed": observed, "kept": kept,
-                   "shm_ns": after.get("shm", 0) - before.get("shm", 0),
-                   "udp_ns": after.get("udp", 0) - before.get("udp", 0)}}), flush=True)
-node.destroy_node()
-rclpy.try_shutdown()
+QOS = QoSProfile(depth=DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+""".replace("DEPTH", str(DEPTH))
+
+# A reader that does not take until the writer is done: its history keeps the newest DEPTH.
+READER = COMMON + f"""
+with ros_context([]) as ros:
+    node = Node("loopback_reader", context=ros.context)
+    sub = node.create_subscription(String, "{TOPIC}", lambda m: None, QOS)
+    print("ready", flush=True)
+    before = thread_cpu()
+    sys.stdin.readline()  # the writer is done
+    after = thread_cpu()
+    kept = 0
+    while sub.handle.take_message(sub.msg_type, sub.raw) is not None:
+        kept += 1
+    print(json.dumps({{"kept": kept, "ports": shm_ports(),
+                       "shm_ns": after.get("shm", 0) - before.get("shm", 0),
+                       "udp_ns": after.get("udp", 0) - before.get("udp", 0)}}), flush=True)
+    node.destroy_node()
+"""
+
+WRITER = COMMON + f"""
+with ros_context([]) as ros:
+    node = Node("loopback_writer", context=ros.context)
+    pub = node.create_publisher(String, "{TOPIC}", QOS)
+    end = time.monotonic() + 30.0
+    while pub.get_subscription_count() < 1:
+        assert time.monotonic() < end, "the reader did not match within 30 s"
+        time.sleep(0.05)
+    payload = "x" * 200
+    for i in range({SENT}):
+        pub.publish(String(data=f"{{i}} {{payload}}"))
+        time.sleep(0.0005)
+    time.sleep(1.0)  # let the reliable tail arrive
+    print(json.dumps({{"ports": shm_ports()}}), flush=True)
+    node.destroy_node()
 """
 
 
 @pytest.mark.parametrize("env", [{}, {PROFILES_VARS[1]: "/a/profile.xml"},
+                                 {PROFILES_VARS[0]: "/a/profile.xml"},
                                  {DISCOVERY_RANGE_VAR: "SUBNET"}])
-def test_observe_over_udp_yields_to_the_users_choice(env: dict[str, str]) -> None:
+def test_loopback_over_udp_yields_to_the_users_choice(env: dict[str, str]) -> None:
     e = dict(env)
-    assert observe_over_udp(e) is (not env)
+    assert loopback_over_udp(e) is (not env)
     if not env:
-        assert e[PROFILES_VARS[1]] == str(OBSERVER_PROFILE) and OBSERVER_PROFILE.is_file()
+        assert e[PROFILES_VARS[1]] == str(PROFILE) and PROFILE.is_file()
     else:
         assert e == env
 
 
+OWN_PROFILE = ('<?xml version="1.0" encoding="UTF-8" ?>\n'
+               '<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">\n'
+               '  <participant profile_name="users_own"><rtps/></participant>\n'
+               '</profiles>\n')
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("arm", ["observer", "default"])
-def test_observer_receives_over_udp_and_keeps_its_depth(arm: str, domain: int) -> None:
+@pytest.mark.parametrize(("writer_role", "reader_role"), [
+    ("package", "package"),  # e.g. the plant and the decoupling, or the recorder
+    ("package", "outside"),  # `ros2 topic echo` with Fast DDS's defaults
+    ("outside", "outside"),
+])
+def test_the_package_never_uses_shared_memory(writer_role: str, reader_role: str, domain: int,
+                                              tmp_path: Path) -> None:
     env = {k: v for k, v in os.environ.items() if k not in PROFILES_VARS}
-    proc = subprocess.Popen([sys.executable, "-c", READER, arm], env=env, text=True,
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
+    own = tmp_path / "own.xml"  # a profile file of the user's own that keeps the defaults
+    own.write_text(OWN_PROFILE)
+    envs = {"package": env, "outside": {**env, PROFILES_VARS[1]: str(own)}}
+    reader = subprocess.Popen([sys.executable, "-c", READER], env=envs[reader_role], text=True,
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE)
     try:
-        node = Node("transport_writer", context=ctx)
-        pub = node.create_publisher(String, TOPIC,
-                                    QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-        assert proc.stdout is not None and proc.stdin is not None
-        assert proc.stdout.readline().strip() == "ready", proc.communicate()
-        end = time.monotonic() + 30.0
-        while pub.get_subscription_count() < 1:
-            assert time.monotonic() < end, "the reader did not match within 30 s"
-            time.sleep(0.05)
-        payload = "x" * 200
-        for i in range(SENT):
-            pub.publish(String(data=f"{i} {payload}"))
-            time.sleep(0.0005)
-        time.sleep(1.0)  # let the reliable tail arrive
-        out, err = proc.communicate(input="done\n", timeout=30)
+        assert reader.stdout is not None
+        assert reader.stdout.readline().strip() == "ready", reader.communicate()
+        writer = subprocess.run([sys.executable, "-c", WRITER], env=envs[writer_role],
+                                text=True, capture_output=True, timeout=120, check=False)
+        assert writer.returncode == 0, writer.stderr
+        out, err = reader.communicate(input="done\n", timeout=30)
     finally:
-        rclpy.try_shutdown(context=ctx)
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, err
-    res = json.loads(out.strip().splitlines()[-1])
-    assert res["observed"] is (arm == "observer")
-    assert res["kept"] == DEPTH  # the profile leaves the reader's history as it was
-    if arm == "observer":  # every sample through the UDP listener, none through shared memory
-        assert res["udp_ns"] > 10 * res["shm_ns"], res
-    else:
-        assert res["shm_ns"] > 10 * res["udp_ns"], res
+        if reader.poll() is None:
+            reader.kill()
+    assert reader.returncode == 0, err
+    wrote = json.loads(writer.stdout.strip().splitlines()[-1])
+    read = json.loads(out.strip().splitlines()[-1])
+    assert read["kept"] == DEPTH  # the profile leaves the reader's history as it was
+    if reader_role == "package":  # no shared-memory port on either side; all through UDP
+        assert wrote["ports"] == [] and read["ports"] == [], (wrote, read)
+        assert read["udp_ns"] > 10 * read["shm_ns"], read
+    else:  # the writer opened the reader's port: the path with the 333 ms health check
+        assert read["ports"] and set(read["ports"]) <= set(wrote["ports"]), (wrote, read)
+        if writer_role == "outside":
+            assert read["shm_ns"] > 10 * read["udp_ns"], read
