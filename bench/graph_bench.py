@@ -122,8 +122,9 @@ def run(smoke: bool, tmp: Path, rt_seconds: float | None = None) -> list[Row]:
 
 #: Why a CPU-per-sample row misses its target (docs/performance.md, "CPU per sample, one process
 #: per node": the perf profile).
-CPU_WHY = ("NOT met: per input message ~40-50 us go to Fast DDS's shared-memory receive thread and "
-           "the SCHED_FIFO wake-up with its mutex hand-off before any Python runs (perf, "
+CPU_WHY = ("NOT met: per input message ~40-50 us go to Fast DDS's receive thread (measured over "
+           "shared memory; UDP since 2026-11-26 costs the plant 1.1x, the decoupling 1.2x) and the "
+           "SCHED_FIFO wake-up with its mutex hand-off before any Python runs (perf, "
            "docs/performance.md); the Python per sample is 16 us warm")
 #: What the deadline-miss rows measure, beside issue 21's late + stale.
 MISS_WHY = ("the jitter of the plant's publication period; a late period is caught up within "
