@@ -54,6 +54,7 @@ from dcsms_ros.errors import BagError, DcsmsError
 from dcsms_ros.ros.connectivity import has_reader
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
 from dcsms_ros.ros.hotpath import DetachedGroup, DrivenContext
+from dcsms_ros.ros.transport import widen_udp_receive_buffers
 
 NODE_NAME = "dcsms_recorder"
 DEFAULT_TOPICS = ("/dcsms/*",)
@@ -340,6 +341,7 @@ def record(out: str, topics: Sequence[str] | None = None, storage: str | None = 
         try:
             node = rec = Recorder(out, topics, storage, duration_s, queue_depth,
                                   context=ros.context)
+            widen_udp_receive_buffers()  # a recorder off its core for a while loses nothing
             executor = SingleThreadedExecutor(context=ros.context)
             executor.add_node(rec)
             spin_until(executor, lambda: bool(ros.stop) or rec.expired())

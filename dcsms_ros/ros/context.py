@@ -109,13 +109,13 @@ def ros_context(args: Sequence[str] | None = None, signals: bool = False,
     nodes must be destroyed inside the block, before the context goes.
     """
     keep_discovery_local()
-    loopback_over_udp()
     session = RosSession(context if context is not None else Context())
     old = {s: signal.signal(s, session.stop) for s in STOP_SIGNALS} if signals else {}
     try:
-        rclpy.init(args=None if args is None else list(args), context=session.context,
-                   signal_handler_options=SignalHandlerOptions.NO)
-        yield session
+        with loopback_over_udp():  # held while the caller creates its nodes (the participant)
+            rclpy.init(args=None if args is None else list(args), context=session.context,
+                       signal_handler_options=SignalHandlerOptions.NO)
+            yield session
     finally:
         rclpy.try_shutdown(context=session.context)
         for s, h in old.items():

@@ -36,29 +36,79 @@ port: start such a tool with ``FASTRTPS_DEFAULT_PROFILES_FILE`` set to :data:`PR
 from __future__ import annotations
 
 import os
-from collections.abc import MutableMapping
+import socket
+from collections.abc import Iterator, MutableMapping
+from contextlib import contextmanager
 from pathlib import Path
 
 from dcsms_ros.rosenv import DEFAULT_RANGE, DISCOVERY_RANGE_VAR
 
 #: The variables Fast DDS reads its XML profiles from (the first one set wins).
 PROFILES_VARS = ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")
+#: Receive buffer (bytes) a recorder asks for on each of its UDP sockets (Linux doubles it).
+RECORDER_RCVBUF_BYTES = 4 * 1024 * 1024
+#: Linux's SO_RCVBUFFORCE (not in Python's socket module): a size above net.core.rmem_max,
+#: allowed with CAP_NET_ADMIN.
+_SO_RCVBUFFORCE = 33
 #: The package's participant profile, installed with it.
 PROFILE = Path(__file__).with_name("loopback_profile.xml")
 
 
-def loopback_over_udp(env: MutableMapping[str, str] | None = None) -> bool:
-    """Make the DDS participants of a process (``env``: its environment) announce UDP loopback
-    only; call before the first participant exists (Fast DDS reads the profile once per
-    process). True if the profile was set, False if the user's profile file or discovery range
-    takes precedence."""
+@contextmanager
+def loopback_over_udp(env: MutableMapping[str, str] | None = None) -> Iterator[bool]:
+    """Point Fast DDS at :data:`PROFILE` while the block creates the process's first
+    participant (rmw_fastrtps creates it with the first node, and Fast DDS reads the profile
+    once per process); ``env``: the process's environment. Yields True if the profile was set,
+    False if the user's profile file or discovery range takes precedence. The variable is
+    removed again when the block ends, so a process started afterwards (another host's range,
+    a test's own profile) chooses for itself."""
     env = os.environ if env is None else env
-    if any(env.get(v) for v in PROFILES_VARS):
-        return False
-    if env.get(DISCOVERY_RANGE_VAR, DEFAULT_RANGE) != DEFAULT_RANGE:
-        return False
+    if any(env.get(v) for v in PROFILES_VARS) or \
+            env.get(DISCOVERY_RANGE_VAR, DEFAULT_RANGE) != DEFAULT_RANGE:
+        yield False
+        return
     env[PROFILES_VARS[1]] = str(PROFILE)
-    return True
+    try:
+        yield True
+    finally:
+        env.pop(PROFILES_VARS[1], None)
 
 
-__all__ = ["PROFILE", "PROFILES_VARS", "loopback_over_udp"]
+def widen_udp_receive_buffers(size: int = RECORDER_RCVBUF_BYTES) -> list[int]:
+    """Ask for ``size`` bytes of kernel receive buffer on every UDP socket of this process.
+
+    Fast DDS sizes its sockets from ``net.core.rmem_default`` (212,992 bytes here: ~35 ms of
+    the soak test's three recorded streams) and rmw offers no setting for it under
+    ``LOCALHOST``; a recorder that loses its core for longer loses datagrams (the soak test
+    lost 116-131 per stream in a loaded fresh-clone CI). Call once the process's participant
+    exists. Without CAP_NET_ADMIN the kernel caps the size at ``net.core.rmem_max``.
+
+    Returns
+    -------
+    list of int
+        The buffer each UDP socket has now, bytes (Linux reports twice the size asked for).
+    """
+    sizes = []
+    for name in os.listdir("/proc/self/fd"):
+        try:
+            fd = os.dup(int(name))
+        except OSError:  # gone (the listing's own descriptor)
+            continue
+        try:
+            s = socket.socket(fileno=fd)
+        except OSError:  # not a socket
+            os.close(fd)
+            continue
+        with s:
+            if s.type != socket.SOCK_DGRAM or s.family not in (socket.AF_INET, socket.AF_INET6):
+                continue
+            try:
+                s.setsockopt(socket.SOL_SOCKET, _SO_RCVBUFFORCE, size)
+            except PermissionError:
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
+            sizes.append(s.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
+    return sizes
+
+
+__all__ = ["PROFILE", "PROFILES_VARS", "RECORDER_RCVBUF_BYTES", "loopback_over_udp",
+           "widen_udp_receive_buffers"]

@@ -13,13 +13,19 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from dcsms_ros.ros.transport import PROFILE, PROFILES_VARS, loopback_over_udp
+from dcsms_ros.ros.transport import (
+    PROFILE,
+    PROFILES_VARS,
+    loopback_over_udp,
+    widen_udp_receive_buffers,
+)
 from dcsms_ros.rosenv import DISCOVERY_RANGE_VAR
 
 pytest.importorskip("rclpy")
@@ -90,13 +96,26 @@ with ros_context([]) as ros:
 @pytest.mark.parametrize("env", [{}, {PROFILES_VARS[1]: "/a/profile.xml"},
                                  {PROFILES_VARS[0]: "/a/profile.xml"},
                                  {DISCOVERY_RANGE_VAR: "SUBNET"}])
-def test_loopback_over_udp_yields_to_the_users_choice(env: dict[str, str]) -> None:
+def test_loopback_over_udp_yields_to_the_users_choice_and_cleans_up(env: dict[str, str]) -> None:
     e = dict(env)
-    assert loopback_over_udp(e) is (not env)
-    if not env:
-        assert e[PROFILES_VARS[1]] == str(PROFILE) and PROFILE.is_file()
-    else:
-        assert e == env
+    with loopback_over_udp(e) as applied:
+        assert applied is (not env)
+        if not env:
+            assert e[PROFILES_VARS[1]] == str(PROFILE) and PROFILE.is_file()
+        else:
+            assert e == env
+    assert e == env  # a child started later (another host's range) chooses for itself
+
+
+def test_a_recorder_widens_its_udp_receive_buffers() -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp, \
+            socket.socket(socket.AF_INET, socket.SOCK_STREAM) as tcp:
+        before = tcp.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        sizes = widen_udp_receive_buffers(1 << 20)
+        got = udp.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        assert got >= 1 << 20 and got in sizes  # Linux reports twice what was asked
+        assert tcp.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) == before
+    assert sizes and all(s >= 1 << 20 for s in sizes)
 
 
 OWN_PROFILE = ('<?xml version="1.0" encoding="UTF-8" ?>\n'
