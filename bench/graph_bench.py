@@ -172,6 +172,11 @@ def _recorded(r: dict[str, Any], samples: int) -> str:
     rec = r.get("recorded") or {}
     streams = {t: c for t, c in rec.items() if "/velocity/" in t or "/force/" in t
                or t.endswith(("/sensors/raw", "/actuators/applied"))}
+    sent = r.get("published") or {}
+    if sent and all(t in sent for t in streams):  # real time: against what was published
+        lost = {t: sent[t] - c for t, c in streams.items() if c < sent[t]}
+        return (f"recorded {sum(streams.values())} of {sum(sent[t] for t in streams)} stream "
+                f"messages published" + (f", LOST: {lost}" if lost else ", none lost"))
     short = {t: c for t, c in streams.items() if c < samples}
     return (f"recorded {sum(rec.values())} msgs on {len(rec)} topics, "
             + (f"SHORT: {short}" if short else f"every stream complete ({samples} samples)"))
@@ -227,10 +232,20 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
                  "value": rate / 2000.0, "unit": "x real time", "target": 1.0,
                  "note": f"{rate:.0f} steps/s; {_recorded(tem, int(round(tem_s * 2000)))}"})
     rows.append(_up_row(smoke, tmp, base + 16))
-    r = run_graph("realtime", rt_s, base + 15, tmp, timeout_s=rt_s * 3 + 120, composed=True)
+    # recording on, in the process (`dcsms up --composed --record`'s default)
+    r = run_graph("realtime", rt_s, base + 15, tmp, timeout_s=rt_s * 3 + 120, composed=True,
+                  record="composed", rt_priority=0 if smoke else 50)
     s = realtime_stats(r)
-    rt = _realtime_rows(r, s, rt_s, ", composed")
+    rt = _realtime_rows(r, s, rt_s, ", composed, recorder in the process")
     rt[1]["target_max"], rt[2]["target_max"] = 1e-3, 0.5
+    samples = int(round(rt_s * r["rate_hz"]))
+    rt.insert(1, {"name": "graph: real time, composed, recorder in the process, late + stale "
+                          "per sample (issue 21)",
+                  "value": r["overruns"] / samples + r["stale"] / (samples * r["controllers"]),
+                  "unit": "", "target_max": 1e-3,
+                  "note": f"late {r['overruns']} of {samples} samples, stale forces "
+                          f"{r['stale']} of {samples * r['controllers']}; "
+                          f"{_recorded(r, samples)}; --rt-priority {0 if smoke else 50}"})
     rows += rt
     rows.append(_demo_row(smoke, tmp))
     return rows

@@ -135,6 +135,15 @@ class BagWriter:
                 write(conn, t, b)
             self.counts[topic] += len(buffers)
 
+    def set_custom_data(self, key: str, value: str) -> None:
+        """One entry of the bag's ``custom_data`` (rosbag2 metadata), written at close."""
+        with self._lock:
+            self._writer.set_custom_data(key, value)
+
+    def flush(self) -> None:
+        """Nothing to do: rosbags writes each message in :meth:`write` (the same call as
+        :meth:`.mcapwrite.McapBagWriter.flush`, which can hold full chunks back)."""
+
     def close(self) -> Path:
         """Finish the bag (index, metadata.yaml) and move it to :attr:`path`; returns it."""
         with self._lock:  # a write in another thread ends first; later ones are refused

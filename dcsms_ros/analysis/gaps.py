@@ -24,8 +24,9 @@ are switched off (``checked = False``) and only the count is reported.
 
 from __future__ import annotations
 
+import json
 import statistics
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 #: An interval longer than this many median periods is a time gap.
@@ -159,6 +160,15 @@ class TopicStats:
         return (self.count - 1) * 1e9 / span if self.count > 1 and span > 0 else 0.0
 
     @property
+    def published(self) -> int | None:
+        """Messages the topic's one publisher had published up to the last one received: its
+        last publication sequence number (a DDS writer and the in-process bus both count from
+        1). None when not known: no sequence numbers, several publishers, or a restart."""
+        if not self.checked or self.restarts or self._last_seq is None:
+            return None
+        return self._last_seq
+
+    @property
     def ok(self) -> bool:
         """No sequence gap, no time gap, no backwards stamp."""
         return not (self.seq_gaps or self.time_gaps or self.backwards)
@@ -168,9 +178,30 @@ class TopicStats:
         return {"topic": self.topic, "type": self.msgtype, "count": self.count,
                 "rate_hz": round(self.rate_hz, 3), "seq_gaps": self.seq_gaps,
                 "seq_missing": self.seq_missing, "checked": self.checked,
+                "published": self.published,
                 "restarts": self.restarts, "time_gaps": self.time_gaps,
                 "backwards": self.backwards, "median_period_ns": self.median_period_ns,
                 "gap_examples_ns": [list(e) for e in self.examples]}
+
+
+#: The bag's ``custom_data`` key under which a recorder leaves, as JSON ``{topic: count}``,
+#: how many messages each topic's publisher had published (:attr:`TopicStats.published`).
+PUBLISHED_KEY = "dcsms_ros.published"
+
+
+def published_json(stats: Sequence[TopicStats]) -> str:
+    """The :data:`PUBLISHED_KEY` value for ``stats`` (topics whose count is known)."""
+    return json.dumps({s.topic: s.published for s in stats if s.published is not None},
+                      sort_keys=True)
+
+
+def read_published(custom_data: Mapping[str, str] | None) -> dict[str, int]:
+    """The published counts a recorder left in a bag's ``custom_data`` (empty if none)."""
+    try:
+        raw = json.loads((custom_data or {}).get(PUBLISHED_KEY, "{}"))
+    except (TypeError, ValueError):
+        return {}
+    return {str(k): int(v) for k, v in raw.items()} if isinstance(raw, dict) else {}
 
 
 @dataclass

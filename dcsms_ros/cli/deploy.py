@@ -38,6 +38,7 @@ from typing import Any
 
 import yaml
 
+from dcsms_ros.analysis.gaps import read_published
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, RT_PRIORITY_ENV, GraphSpec
 from dcsms_ros.jsonutil import jsonable
@@ -274,24 +275,36 @@ def report_summary(spec: GraphSpec, plant: dict[str, str], bag: Path | None,
                    log_dir: Path) -> RunSummary:
     """Print the run's summary line and write it as ``summary.json`` in ``log_dir``."""
     counts = bag_counts(bag) if bag is not None else None
-    summary = summarize(plant, counts, spec.stream_topics())
+    published = bag_published(bag) if bag is not None else None
+    summary = summarize(plant, counts, spec.stream_topics(), published)
     print(f"dcsms up: summary: {summary.line()}", flush=True)
     (log_dir / "summary.json").write_text(json.dumps(jsonable(summary.to_dict()), indent=1,
                                                      allow_nan=False) + "\n")
     return summary
 
 
-def bag_counts(bag: Path) -> dict[str, int]:
-    """Messages per topic in the closed bag's ``metadata.yaml`` (empty if it has none)."""
+def _bag_info(bag: Path) -> dict[str, Any]:
+    """The closed bag's ``metadata.yaml`` information (empty if it has none)."""
     try:
         meta = yaml.safe_load((bag / "metadata.yaml").read_text())
     except (OSError, yaml.YAMLError):
         return {}
     info = meta.get("rosbag2_bagfile_information", {}) if isinstance(meta, dict) else {}
+    return info if isinstance(info, dict) else {}
+
+
+def bag_counts(bag: Path) -> dict[str, int]:
+    """Messages per topic in the closed bag's ``metadata.yaml`` (empty if it has none)."""
     return {t["topic_metadata"]["name"]: int(t["message_count"])
-            for t in info.get("topics_with_message_count", [])}
+            for t in _bag_info(bag).get("topics_with_message_count", [])}
 
 
-__all__ = ["RECORDERS", "Child", "Deployment", "bag_counts", "child_env", "children",
-           "composed_child", "node_argv", "recorder_command", "report_summary", "run_graph",
-           "start", "stop", "write_files"]
+def bag_published(bag: Path) -> dict[str, int]:
+    """Messages per topic its publisher published, as the recorder left them in the bag's
+    ``custom_data`` (:data:`~dcsms_ros.analysis.gaps.PUBLISHED_KEY`; empty if unknown)."""
+    return read_published(_bag_info(bag).get("custom_data"))
+
+
+__all__ = ["RECORDERS", "Child", "Deployment", "bag_counts", "bag_published", "child_env",
+           "children", "composed_child", "node_argv", "recorder_command", "report_summary",
+           "run_graph", "start", "stop", "write_files"]

@@ -53,10 +53,10 @@ def add_deploy_options(p: argparse.ArgumentParser, composed: bool = False) -> No
                        "cycle (default: one process per node, as `ros2 run`)")
     p.add_argument("--recorder", choices=RECORDERS, default=None,
                    help="with --composed and a recording: the recorder in the composed process "
-                   "(default in lockstep: it takes every message there, without DDS, ~1.6x "
-                   "faster) or in its own process (default in real time: on an idle machine it "
-                   "left 0 late samples in 3 of 3 runs, the in-process one 0.06-0.38 %% in 4 of "
-                   "7; docs/performance.md)")
+                   "(default: it takes every message there without DDS; lockstep ~1.6x faster, "
+                   "real time 0 late samples and control latency p99 0.19-0.24 ms in 8 of 8 "
+                   "runs) or in its own process (every message also goes out on DDS; p99 "
+                   "0.34-0.42 ms; docs/performance.md)")
     p.add_argument("--rt-priority", type=int, default=0, metavar="N",
                    help="run the hot thread of each control-path process (plant, decoupling, "
                    "controllers; composed: the driver thread) under SCHED_FIFO priority N (1-99; "
@@ -160,8 +160,7 @@ def launch(spec: GraphSpec, args: argparse.Namespace, events: Sequence[tuple[flo
     demo's, is then incomplete and must not be analysed as if it were whole)."""
     log_dir = log_dir or Path(tempfile.mkdtemp(prefix="dcsms-up-"))
     how = Deployment(composed=args.composed, rt_priority=args.rt_priority, record=record,
-                     record_topics=record_topics, recorder=args.recorder or (
-                         "composed" if spec.schedule == "lockstep" else "process"),
+                     record_topics=record_topics, recorder=args.recorder or "composed",
                      log_dir=log_dir,
                      verbose=verbose, connect_timeout=getattr(args, "connect_timeout", 60.0),
                      expect_finish=expect_finish, events=events)

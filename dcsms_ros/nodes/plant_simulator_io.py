@@ -306,7 +306,8 @@ class PlantIO:
             arrays: dict[str, Any] = {
                 "t_pub_ns": np.asarray(self._t_pub, dtype=np.int64),
                 "cpu_s": np.asarray(self._cpu), "rate_hz": self.sim.cfg.plant.rate_hz,
-                "overruns": self.node.pacer.overruns}
+                "overruns": self.node.pacer.overruns,
+                "stale_samples": sum(self.node.held.stale_samples.values())}
             arrays.update({f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
                            for c, v in self._lat.items()})
             np.savez(self.node.opts.timing_file, **arrays)

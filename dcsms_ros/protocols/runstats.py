@@ -75,6 +75,10 @@ class RunSummary:
         sample once; a retransmission repeats one): the bag holds all of it. In real time it
         is only a scale: a reader of keep-last 1 skips a sample under load and publishes
         nothing for it, a controller whose input is stale publishes zero forces of its own.
+    published : int or None
+        What the publishers of those streams published, as the recorder counted it from their
+        sequence numbers (None: not known for every stream). ``recorded`` against it is the
+        recorder's loss.
     lockstep : bool
         The run's schedule (what ``samples_x_streams`` means).
     """
@@ -87,12 +91,15 @@ class RunSummary:
     recorded: int | None = None
     samples_x_streams: int | None = None
     lockstep: bool = True
+    published: int | None = None
 
     def line(self) -> str:
         """``samples N, late N (x %), stale forces N, control latency p50/p99 X/Y ms, ...``."""
         pct = 100.0 * self.late / self.samples if self.samples else 0.0
         if self.recorded is None:
             rec = "not recorded"
+        elif self.published is not None:
+            rec = f"recorded {self.recorded} of {self.published} messages"
         elif self.lockstep:
             rec = f"recorded {self.recorded} of {self.samples_x_streams} messages"
         else:  # not what was published (see the class notes): only the scale is given
@@ -113,7 +120,7 @@ def _ms(s: float) -> str:
 
 
 def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
-              streams: list[str]) -> RunSummary:
+              streams: list[str], published: Mapping[str, int] | None = None) -> RunSummary:
     """The summary of a run from the plant's last diagnostics and the bag's counts.
 
     Parameters
@@ -124,6 +131,9 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
         Message count per topic in the bag (None: not recorded).
     streams : list of str
         The per-sample topics (one message per sample each) that were recorded.
+    published : mapping, optional
+        Messages each topic's publisher published (the recorder's count, see
+        :attr:`RunSummary.published`); used when it covers every recorded stream.
     """
     samples = int(plant.get("sample", "0"))
 
@@ -134,16 +144,19 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
             return math.nan
 
     late = int(plant.get("overruns", "0")) + int(plant.get("lockstep_timeouts", "0"))
-    recorded = scale = None
+    recorded = scale = sent = None
     if counts is not None:
         present = [s for s in streams if s in counts]
         recorded = sum(counts[s] for s in present)
         scale = samples * len(present)
+        if present and published and all(s in published for s in present):
+            sent = sum(published[s] for s in present)
     return RunSummary(samples=samples, late=late, stale=int(plant.get("stale_samples", "0")),
                       latency_p50_s=num("latency_p50_ms") * 1e-3,
                       latency_p99_s=num("latency_p99_ms") * 1e-3,
                       recorded=recorded, samples_x_streams=scale,
-                      lockstep=plant.get("schedule", "lockstep") == "lockstep")
+                      lockstep=plant.get("schedule", "lockstep") == "lockstep",
+                      published=sent)
 
 
 __all__ = ["LatencyHistogram", "RunSummary", "summarize"]

@@ -17,9 +17,9 @@ discovery, some after the first sample; keeping only the supervisor and ``dcsms 
 shared memory still left them, and one run of seven stalled. With every process on UDP: none in
 14 runs, and no process maps a shared-memory segment. The price, paired runs on this 2-core
 machine: control latency p50 1.2 ms instead of 0.75, the plant's and the decoupling's CPU per
-sample 1.1x and 1.2x, and a per-process recorder (nice +10, 22,000 messages/s) keeps about half
-of the messages instead of nearly all; a composed graph recorded with ``--recorder composed``
-hands the bytes over inside the process and does not pay it.
+sample 1.1x and 1.2x, and a per-process recorder (nice +10, 22,000 messages/s) kept about half
+of the messages instead of nearly all on that (slow) day, all of them on a faster one; a
+composed graph records inside the process by default and does not pay it.
 
 rmw_fastrtps builds its own transports under ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (shared
 memory and UDP; ``FASTDDS_BUILTIN_TRANSPORTS`` is ignored), but it takes a participant's default

@@ -3,6 +3,7 @@ message, also when single messages and row blocks share chunks."""
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from dcsms_ros import cdr
 from dcsms_ros.analysis import mcapchunks
 from dcsms_ros.analysis.bagio import BagWriter
 from dcsms_ros.analysis.mcapwrite import McapBagWriter
+from dcsms_ros.errors import BagError
 
 TOPICS = ("/dcsms/velocity/stage1", "/dcsms/velocity/stage2")
 
@@ -20,6 +22,19 @@ TOPICS = ("/dcsms/velocity/stage1", "/dcsms/velocity/stage2")
 def _messages(path: Path) -> list[tuple[str, int, bytes]]:
     with Reader(path) as r:
         return [(c.topic, t, bytes(raw)) for c, t, raw in r.messages()]
+
+
+def _indexed(path: Path) -> list[tuple[str, int, bytes]]:
+    """Every message as the chunk reader finds it through the message indexes."""
+    file = next(path.glob("*.mcap"))
+    channels, chunks = mcapchunks.summary(file)
+    out = []
+    for block in mcapchunks.iter_blocks(file, set(channels), chunks):
+        payloads = ([bytes(r) for r in block.rows] if block.rows is not None
+                    else [bytes(b) for b in block.buffers or []])
+        out += [(channels[block.channel][0], int(t), b)
+                for t, b in zip(block.log_ns, payloads, strict=True)]
+    return out
 
 
 @pytest.mark.parametrize("chunk_bytes", [700, 64 << 10])
@@ -59,12 +74,84 @@ def test_single_messages_and_rows_read_back_in_order(tmp_path: Path, chunk_bytes
     assert sorted(got) == sorted(expected + sent[25:])
     # the chunk reader finds the messages through the message indexes: each must point at
     # its record
-    file = next((tmp_path / "ours").glob("*.mcap"))
-    channels, chunks = mcapchunks.summary(file)
-    indexed = []
-    for block in mcapchunks.iter_blocks(file, set(channels), chunks):
-        payloads = ([bytes(r) for r in block.rows] if block.rows is not None
-                    else [bytes(b) for b in block.buffers or []])
-        indexed += [(channels[block.channel][0], int(t), b)
-                    for t, b in zip(block.log_ns, payloads, strict=True)]
-    assert sorted(indexed) == sorted(got)
+    assert sorted(_indexed(tmp_path / "ours")) == sorted(got)
+
+
+def _stream(n: int) -> list[tuple[str, int, bytes]]:
+    t = 10**9 + np.arange(n, dtype=np.int64) * 500_000
+    vel = cdr.encode_stamped(cdr.TWIST_STAMPED, t, "stage1", np.arange(6.0 * n).reshape(n, 6))
+    return [(TOPICS[k % 2], int(t[k]), vel[k]) for k in range(n)]
+
+
+def test_deferred_chunks_wait_for_flush(tmp_path: Path) -> None:
+    """With ``defer_flush`` a write that fills a chunk leaves it in memory (the file keeps only
+    its header) until :meth:`flush`, which writes every full chunk but not the open one;
+    :meth:`close` writes the rest."""
+    sent = _stream(400)
+    w = McapBagWriter(tmp_path / "bag", chunk_bytes=4096, defer_flush=True)
+    for topic in TOPICS:
+        w.add_topic(topic, cdr.TWIST_STAMPED)
+    w._f.flush()
+    header = w.file.stat().st_size  # the MCAP header; the schema and channels wait too
+    for msg in sent:
+        w.write(*msg)
+    w._f.flush()
+    assert w.file.stat().st_size == header  # 400 messages of ~120 B: ~11 chunks held
+    w.flush()
+    w._f.flush()
+    grown = w.file.stat().st_size
+    assert grown > 400 * 100 * 0.8 / 4  # zstd shrinks the repeated bytes ~4x
+    w.flush()  # nothing new is full: the open chunk stays in memory
+    w._f.flush()
+    assert w.file.stat().st_size == grown
+    w.close()
+    assert _messages(tmp_path / "bag") == sent
+    assert sorted(_indexed(tmp_path / "bag")) == sorted(sent)
+
+
+def test_flush_beside_writes_from_another_thread(tmp_path: Path) -> None:
+    """A composed recorder writes on the driver thread while its executor flushes: every
+    message arrives once, in order, and its index points at it; topics added mid-stream too."""
+    sent = _stream(6000)
+    late_topic = "/dcsms/velocity/ground"
+    w = McapBagWriter(tmp_path / "bag", chunk_bytes=8192, defer_flush=True)
+    for topic in TOPICS:
+        w.add_topic(topic, cdr.TWIST_STAMPED)
+    done = threading.Event()
+
+    def flusher() -> None:
+        while not done.is_set():
+            w.flush()
+
+    th = threading.Thread(target=flusher)
+    th.start()
+    try:
+        for k, msg in enumerate(sent):
+            if k == 3000:
+                w.add_topic(late_topic, cdr.TWIST_STAMPED)
+            w.write(*msg)
+            if k >= 3000 and k % 3 == 0:
+                w.write(late_topic, msg[1], msg[2])
+    finally:
+        done.set()
+        th.join()
+    w.close()
+    extra = [(late_topic, t, b) for k, (_, t, b) in enumerate(sent) if k >= 3000 and k % 3 == 0]
+    got = _messages(tmp_path / "bag")
+    assert len(got) == len(sent) + len(extra)
+    assert [m for m in got if m[0] != late_topic] == sent
+    assert [m for m in got if m[0] == late_topic] == extra
+    assert sorted(_indexed(tmp_path / "bag")) == sorted(sent + extra)
+
+
+def test_write_after_close_is_refused_and_nothing_is_left_behind(tmp_path: Path) -> None:
+    """A write racing the close either lands in the bag or is refused with BagError."""
+    w = McapBagWriter(tmp_path / "bag", defer_flush=True)
+    w.add_topic(TOPICS[0], cdr.TWIST_STAMPED)
+    sent = [m for m in _stream(10) if m[0] == TOPICS[0]]
+    for msg in sent:
+        w.write(*msg)
+    w.close()
+    with pytest.raises(BagError, match="written after close"):
+        w.write(*sent[0])
+    assert _messages(tmp_path / "bag") == sent

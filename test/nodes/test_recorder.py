@@ -20,6 +20,7 @@ from rosbags.rosbag2 import Reader
 from dcsms_ros import cdr
 from dcsms_ros.analysis.gaps import TopicStats
 from dcsms_ros.cli import main
+from dcsms_ros.cli.deploy import bag_published
 from dcsms_ros.cli.record import recorder_command
 
 rclpy = pytest.importorskip("rclpy")
@@ -143,6 +144,8 @@ def test_exact_counts_latched_and_clean_signal(graph: Graph, sig: int) -> None:
     np.testing.assert_array_equal(_z(msgs[V1]), np.arange(3000))
     counts = {t["topic"]: t["count"] for t in rep["topics"]}
     assert counts == {MODE: 1, V1: 3000, V2: 0} and not rep["gaps"]
+    # what was published, from the writers' sequence numbers, left in the bag's metadata
+    assert bag_published(graph.bag) == {MODE: 1, V1: 3000}
 
 
 def test_signal_mid_stream_keeps_a_contiguous_prefix(graph: Graph) -> None:
@@ -192,9 +195,14 @@ def test_time_gap_reported(graph: Graph) -> None:
 def test_sequence_gaps_and_restarts() -> None:
     """publication_sequence_number: a jump counts the missing messages; a decrease a restart."""
     st = TopicStats("/t", cdr.TWIST_STAMPED, stamped=False)
-    for seq in (1, 2, 3, 7, 8, 1, 2):
+    assert st.published is None
+    for seq in (1, 2, 3, 7, 8):
+        st.add(seq, None, 0)
+    assert st.published == 8  # 5 received of 8 published
+    for seq in (1, 2):
         st.add(seq, None, 0)
     assert (st.count, st.seq_gaps, st.seq_missing, st.restarts) == (7, 1, 3, 1)
+    assert st.published is None  # after a restart the total is not known
     st.set_publishers(2)  # interleaved numbering is not checked, nor the return to one
     for seq in (3, 50, 4, 51):
         st.add(seq, None, 0)

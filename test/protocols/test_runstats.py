@@ -53,3 +53,16 @@ def test_summary_from_a_plant_report_and_bag_counts() -> None:
     assert not rt.to_dict()["lockstep"]
     bare = summarize({"sample": "10"}, None, [])
     assert bare.line().endswith("p50/p99 -/- ms, not recorded")
+
+
+def test_summary_against_what_was_published() -> None:
+    """With the recorder's published counts for every recorded stream, the line says recorded
+    of published (real time too); a stream without one falls back to the scale."""
+    plant = {"sample": "4000", "schedule": "realtime", "stale_samples": "0"}
+    counts = {"/a": 4000, "/b": 3890}
+    s = summarize(plant, counts, ["/a", "/b", "/c"], {"/a": 4000, "/b": 3950, "/x": 5})
+    assert (s.recorded, s.published, s.samples_x_streams) == (7890, 7950, 8000)
+    assert s.line().endswith("recorded 7890 of 7950 messages")
+    partial = summarize(plant, counts, ["/a", "/b"], {"/a": 4000})
+    assert partial.published is None
+    assert partial.line().endswith("recorded 7890 stream messages (samples x streams = 8000)")
