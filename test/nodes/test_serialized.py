@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -76,8 +77,29 @@ class Probe(Node, Hosted):
         return res
 
 
+def _spin(ex: MultiThreadedExecutor) -> Callable[[], None]:
+    """Spin ``ex`` in a thread; returns the call that stops it. The thread ends before the
+    executor is shut down: ``shutdown()`` beside a running ``spin()`` destroys the guard
+    condition the spinning thread is about to wait on (an AttributeError in that thread)."""
+    done = threading.Event()
+
+    def run() -> None:
+        while not done.is_set():
+            ex.spin_once(timeout_sec=0.05)
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+
+    def stop() -> None:
+        done.set()
+        th.join(5.0)
+        ex.shutdown(timeout_sec=2.0)
+
+    return stop
+
+
 def _spun(ctx: Any, threads: int, serialized: bool = True
-          ) -> tuple[Probe, Node, MultiThreadedExecutor, Serialized | None]:
+          ) -> tuple[Probe, Node, Callable[[], None], Serialized | None]:
     """The probe (wrapped as the host does, before the executor gets it) and a driver node on
     a multi-threaded executor spinning in a thread."""
     probe = Probe(context=ctx)
@@ -86,15 +108,14 @@ def _spun(ctx: Any, threads: int, serialized: bool = True
     ex = MultiThreadedExecutor(num_threads=threads, context=ctx)
     ex.add_node(probe)
     ex.add_node(other)
-    threading.Thread(target=ex.spin, daemon=True).start()
-    return probe, other, ex, serial
+    return probe, other, _spin(ex), serial
 
 
 @pytest.mark.parametrize("serialized", [True, False], ids=["host", "bare"])
 def test_callbacks_never_run_beside_the_hot_loop(ctx, serialized: bool) -> None:
     """With the host's wrapping no executor callback ever runs while the hot handler does, on a
     4-thread executor under load; without it they do overlap (the test can fail)."""
-    probe, other, ex, serial = _spun(ctx, 4, serialized)
+    probe, other, stop, serial = _spun(ctx, 4, serialized)
     try:
         pub = other.create_publisher(Int64, "probe_in", qos.stream_pub(True))
         cli = other.create_client(Trigger, "busy")
@@ -124,7 +145,7 @@ def test_callbacks_never_run_beside_the_hot_loop(ctx, serialized: bool) -> None:
         else:
             assert probe.most > 1  # what the wrapping prevents
     finally:
-        ex.shutdown(timeout_sec=2.0)
+        stop()
         probe.hot.stop()
         probe.destroy_node()
         other.destroy_node()
@@ -133,7 +154,7 @@ def test_callbacks_never_run_beside_the_hot_loop(ctx, serialized: bool) -> None:
 def test_an_async_callback_frees_the_hot_loop_while_it_waits(ctx) -> None:
     """An ``async def`` service holds the lock only between awaits: while it waits 0.3 s the
     hot loop's lock is free and messages are handled; it then answers."""
-    probe, other, ex, serial = _spun(ctx, 2)
+    probe, other, stop, serial = _spun(ctx, 2)
     assert serial is not None
     try:
         cli = other.create_client(Trigger, "slow")
@@ -154,7 +175,7 @@ def test_an_async_callback_frees_the_hot_loop_while_it_waits(ctx) -> None:
         assert not probe.suspended
         assert serial.longest_s < 0.1  # no hold spans the 0.3 s wait
     finally:
-        ex.shutdown(timeout_sec=2.0)
+        stop()
         probe.hot.stop()
         probe.destroy_node()
         other.destroy_node()
@@ -201,7 +222,7 @@ def test_reports_go_out_after_the_lock_and_in_order(ctx) -> None:
     ex = MultiThreadedExecutor(num_threads=3, context=ctx)
     ex.add_node(node)
     ex.add_node(other)
-    threading.Thread(target=ex.spin, daemon=True).start()
+    stop = _spin(ex)
     try:
         pub = other.create_publisher(Int64, "reporter_in", qos.stream_pub(True))
         end = time.monotonic() + 10.0
@@ -224,7 +245,7 @@ def test_reports_go_out_after_the_lock_and_in_order(ctx) -> None:
         assert node.held_while_sent.count(False) >= timer_runs - 1
         assert node.held_while_sent.count(True) == 400
     finally:
-        ex.shutdown(timeout_sec=2.0)
+        stop()
         node.hot.stop()
         node.destroy_node()
         other.destroy_node()
