@@ -91,18 +91,30 @@ def normalized_cv(segments: Sequence[tuple[float, np.ndarray, np.ndarray]],
     return [float(np.sqrt(max(p, 0.0) / base)) if base > 0 else float("nan") for p in powers]
 
 
-def segment_spectra(x: np.ndarray, fs: float, nperseg: int) -> np.ndarray:
+def segment_spectra(x: np.ndarray, fs: float, nperseg: int,
+                    rows: np.ndarray | None = None, block: int = 256) -> np.ndarray:
     """The Fourier transforms of the Welch segments :func:`.estimators.psd` averages (Hann,
     half overlap, mean removed) of ``x`` (N,) sampled at ``fs`` Hz, scaled so that
-    ``|X|**2`` is the segment's one-sided density (unit^2/Hz), shape (F, K)."""
-    _, _, z = signal.stft(np.asarray(x, dtype=np.float64), fs, window="hann", nperseg=nperseg,
-                          noverlap=nperseg // 2, detrend="constant", boundary=None,
-                          padded=False, scaling="psd")
-    scale = np.full(z.shape[0], np.sqrt(2.0))
+    ``|X|**2`` is the segment's one-sided density (unit^2/Hz), shape (F, K); with ``rows`` (a
+    boolean mask of the F bins) only those bins. ``block`` segments are transformed at a time,
+    so an hour's record needs ~``block`` segments of work arrays, not all of them (~0.5 GB)."""
+    x = np.asarray(x)  # each block in float64, not the whole record
+    hop = nperseg - nperseg // 2
+    k = 1 + (x.shape[0] - nperseg) // hop if x.shape[0] >= nperseg else 0
+    scale = np.full(nperseg // 2 + 1, np.sqrt(2.0))
     scale[0] = 1.0
     if nperseg % 2 == 0:
         scale[-1] = 1.0
-    return np.asarray(z * scale[:, None])
+    keep = np.ones(scale.size, bool) if rows is None else np.asarray(rows, bool)
+    out = []
+    for s0 in range(0, k, block):
+        m = min(block, k - s0)
+        seg = np.asarray(x[s0 * hop:(s0 + m - 1) * hop + nperseg], dtype=np.float64)
+        _, _, z = signal.stft(seg, fs, window="hann", nperseg=nperseg, noverlap=nperseg // 2,
+                              detrend="constant", boundary=None, padded=False, scaling="psd")
+        out.append(z[keep] * scale[keep, None])
+    return (np.concatenate(out, axis=1) if out
+            else np.zeros((int(keep.sum()), 0), dtype=np.complex128))
 
 
 def variance_ratio(f: np.ndarray, top: np.ndarray, ground: np.ndarray, f_r: float, fs: float,
@@ -146,8 +158,8 @@ def variance_ratio(f: np.ndarray, top: np.ndarray, ground: np.ndarray, f_r: floa
     """
     w = _band(f, f_r)
     sel = w > 0
-    y = segment_spectra(top, fs, nperseg)[sel]
-    g = segment_spectra(ground, fs, nperseg)[sel]
+    y = segment_spectra(top, fs, nperseg, sel)
+    g = segment_spectra(ground, fs, nperseg, sel)
     k = y.shape[1]
     syy = np.mean(np.abs(y) ** 2, axis=1)
     sgg = np.mean(np.abs(g) ** 2, axis=1)
