@@ -120,5 +120,5 @@ def band_power(x: np.ndarray, fs: float, f_lo: float, f_hi: float) -> float:
     return float(w @ (p[sel] / gain))
 
 
-__all__ = ["KEEP_RATE_FACTOR", "NW", "PREFILTER_MARGIN_OCT", "PREFILTER_ORDER", "TAPERS", "band_power",
-           "psd_multitaper"]
+__all__ = ["KEEP_RATE_FACTOR", "NW", "PREFILTER_MARGIN_OCT", "PREFILTER_ORDER", "TAPERS",
+           "band_power", "psd_multitaper"]
