@@ -20,10 +20,8 @@ from __future__ import annotations
 
 import shutil
 import threading
-import zlib
 from array import array
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +30,7 @@ import yaml
 
 from dcsms_ros import __version__
 from dcsms_ros.analysis import staging
+from dcsms_ros.analysis.mcapchunk import Chunk
 from dcsms_ros.analysis.mcaprecords import (
     MAGIC,
     MESSAGE,
@@ -53,28 +52,6 @@ from dcsms_ros.errors import BagError
 CHUNK_BYTES = 4 << 20
 #: zstd level of the chunks (1: fast, ~4x smaller on the graph's streams).
 ZSTD_LEVEL = 1
-
-
-@dataclass
-class _Chunk:
-    """Records of the chunk being filled: their bytes and per-channel index entries.
-
-    The bytes grow in one ``bytearray`` and single messages' index entries in an
-    ``array('Q')``: closing a chunk then needs no ``bytes.join`` over tens of thousands of
-    parts and no list-to-array conversion, the two steps that hold the GIL (3 ms each on a
-    4 MB chunk of the graph's streams); compression and the CRC release it.
-    """
-
-    data: bytearray = field(default_factory=bytearray)
-    index: dict[int, list[np.ndarray]] = field(default_factory=dict)
-    #: per channel, the [log time, offset] pairs of single messages not yet in ``index``
-    singles: dict[int, array[int]] = field(default_factory=dict)
-    t0: int = 2**63 - 1
-    t1: int = 0
-
-    @property
-    def size(self) -> int:
-        return len(self.data)
 
 
 class McapBagWriter:
@@ -114,9 +91,9 @@ class McapBagWriter:
             self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
         self.topics: dict[str, Topic] = {}
         self._schemas: dict[str, tuple[int, bytes]] = {}
-        self._chunk = _Chunk()
+        self._chunk = Chunk()
         #: what waits to go to the file, in file order: records (schemas, channels) and chunks
-        self._pending: list[bytes | _Chunk] = []
+        self._pending: list[bytes | Chunk] = []
         self._chunk_indexes: list[bytes] = []
         self._t0, self._t1 = 2**63 - 1, 0
         #: rosbag2's ``custom_data`` of ``metadata.yaml`` (:meth:`set_custom_data`)
@@ -266,19 +243,12 @@ class McapBagWriter:
             self._close_chunk()
         ch = self._chunk
         for c, entries in index.items():
-            self._singles(ch, c)  # the channel's entries stay in record order
+            ch.move_singles(c)  # the channel's entries stay in record order
             e = entries.copy()
             e[:, 1] += np.uint64(ch.size)
             ch.index.setdefault(c, []).append(e)
         ch.data += data
         ch.t0, ch.t1 = min(ch.t0, t0), max(ch.t1, t1)
-
-    @staticmethod
-    def _singles(ch: _Chunk, c: int) -> None:
-        """Move channel ``c``'s single-message entries into the chunk's index arrays."""
-        single = ch.singles.pop(c, None)
-        if single:  # a view of the array, which takes no more entries
-            ch.index.setdefault(c, []).append(np.frombuffer(single, np.uint64).reshape(-1, 2))
 
     def _close_chunk(self) -> None:
         """Queue the open chunk for :meth:`flush` and open a new one (under ``_lock``)."""
@@ -286,9 +256,9 @@ class McapBagWriter:
         if not ch.size:
             return
         for c in list(ch.singles):
-            self._singles(ch, c)
+            ch.move_singles(c)
         self._pending.append(ch)
-        self._chunk = _Chunk()
+        self._chunk = Chunk()
 
     def _flush_if_due(self) -> None:
         if self._pending and not self.defer_flush:
@@ -309,11 +279,11 @@ class McapBagWriter:
                 items, self._pending = self._pending, []
             self._emit(items)
 
-    def _emit(self, items: list[bytes | _Chunk]) -> None:
+    def _emit(self, items: list[bytes | Chunk]) -> None:
         """Write ``items`` in order (under ``_flock``)."""
         try:
             for item in items:
-                if isinstance(item, _Chunk):
+                if isinstance(item, Chunk):
                     self._write_chunk(item)
                 else:
                     self._f.write(item)
@@ -321,31 +291,10 @@ class McapBagWriter:
             self.abort()
             raise BagError(f"{self.path}: cannot write bag: {exc}") from None
 
-    def _write_chunk(self, ch: _Chunk) -> None:
-        """Write chunk ``ch``, its message indexes, and remember its chunk index (under
+    def _write_chunk(self, ch: Chunk) -> None:
+        """Write chunk ``ch`` and its message indexes; remember its chunk index (under
         ``_flock``)."""
-        raw = ch.data
-        crc = zlib.crc32(raw)
-        comp, name = (self._zstd.compress(raw), "zstd") if self._zstd is not None else (raw, "")
-        start = self._f.tell()
-        body = (U64.pack(ch.t0) + U64.pack(ch.t1) + U64.pack(len(raw)) + U32.pack(crc)
-                + string_field(name) + U64.pack(len(comp)))
-        # the record's opcode and length, then its body in two writes: no copy of the chunk
-        self._f.write(bytes([OPCODES["chunk"]]) + U64.pack(len(body) + len(comp)) + body)
-        self._f.write(comp)
-        end = self._f.tell()
-        offsets = []
-        for c in sorted(ch.index):
-            e = np.concatenate(ch.index[c]).astype("<u8")
-            offsets.append((c, self._f.tell()))
-            self._f.write(record("message_index", U16.pack(c) + U32.pack(e.nbytes)
-                                  + e.tobytes()))
-        self._chunk_indexes.append(record(
-            "chunk_index", U64.pack(ch.t0) + U64.pack(ch.t1) + U64.pack(start)
-            + U64.pack(end - start)
-            + map_field([(U16.pack(c), U64.pack(o)) for c, o in offsets])
-            + U64.pack(self._f.tell() - end) + string_field(name) + U64.pack(len(comp))
-            + U64.pack(len(raw))))
+        self._chunk_indexes.append(ch.write(self._f, self._zstd))
         self._t0, self._t1 = min(self._t0, ch.t0), max(self._t1, ch.t1)
 
     # -- closing -------------------------------------------------------------------------
