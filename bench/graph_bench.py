@@ -241,9 +241,9 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
     samples = int(round(rt_s * r["rate_hz"]))
     rt.insert(1, {"name": "graph: real time, composed, recorder in the process, late + stale "
                           "per sample (issue 21)",
-                  "value": r["overruns"] / samples + r["stale"] / (samples * r["controllers"]),
+                  "value": r["late"] / samples + r["stale"] / (samples * r["controllers"]),
                   "unit": "", "target_max": 1e-3,
-                  "note": f"late {r['overruns']} of {samples} samples, stale forces "
+                  "note": f"late {r['late']} of {samples} samples, stale forces "
                           f"{r['stale']} of {samples * r['controllers']}; "
                           f"{_recorded(r, samples)}; --rt-priority {0 if smoke else 50}"})
     rows += rt

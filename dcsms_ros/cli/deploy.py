@@ -278,6 +278,9 @@ def report_summary(spec: GraphSpec, plant: dict[str, str], bag: Path | None,
     published = bag_published(bag) if bag is not None else None
     summary = summarize(plant, counts, spec.stream_topics(), published)
     print(f"dcsms up: summary: {summary.line()}", flush=True)
+    warning = summary.warning()
+    if warning:
+        print(f"dcsms up: warning: {warning}", file=sys.stderr, flush=True)
     (log_dir / "summary.json").write_text(json.dumps(jsonable(summary.to_dict()), indent=1,
                                                      allow_nan=False) + "\n")
     return summary

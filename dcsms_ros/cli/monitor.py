@@ -178,7 +178,7 @@ class GraphMonitor:
         p = self.diag.get(PLANT, {})
         ms = self.diag.get("mode_switch", {})
         faults = sum(int(p.get(k, "0")) for k in ("lockstep_timeouts", "stale_events",
-                                                   "nonfinite_inputs", "overruns"))
+                                                   "nonfinite_inputs", "overruns", "late_steps"))
         state = ms.get("supervisor", "off")
         # the supervisor's state when it is not simply running the user's mode
         trip = (f"  {state}" if state not in ("off", "ENGAGED") else

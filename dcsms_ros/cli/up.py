@@ -54,9 +54,8 @@ def add_deploy_options(p: argparse.ArgumentParser, composed: bool = False) -> No
     p.add_argument("--recorder", choices=RECORDERS, default=None,
                    help="with --composed and a recording: the recorder in the composed process "
                    "(default: it takes every message there without DDS; lockstep ~1.6x faster, "
-                   "real time 0 late samples in 17 of 18 runs, control latency p99 0.19-0.27 "
-                   "ms) or in its own process (every message also goes out on DDS; p99 "
-                   "0.34-0.42 ms; docs/performance.md)")
+                   "real-time control latency p99 0.19-0.27 ms) or in its own process (every "
+                   "message also goes out on DDS; p99 0.34-0.42 ms; docs/performance.md)")
     p.add_argument("--rt-priority", type=int, default=0, metavar="N",
                    help="run the hot thread of each control-path process (plant, decoupling, "
                    "controllers; composed: the driver thread) under SCHED_FIFO priority N (1-99; "

@@ -13,9 +13,14 @@ answer and answers in turn, and the plant takes the forces and publishes k+1 - e
 handed over in the process (the context's bus, :mod:`dcsms_ros.ros.intraprocess`), and
 published on DDS too while a subscriber in another process (a recorder, ``ros2 topic echo``)
 is matched, so it sees every message. In real time the plant's pacer runs the same cycle at
-its deadlines. Services, parameters, timers, ``/clock`` and the mode switch stay on a
-multi-threaded executor; each node's callbacks there run under its hot-path lock
-(:mod:`dcsms_ros.ros.serialized`), one at a time with its handlers on the driver thread.
+its deadlines. Services, parameters, timers, ``/clock`` and the mode switch stay on one
+single-threaded executor (the mode switch awaits its service calls as tasks); each node's
+callbacks there run under its hot-path lock (:mod:`dcsms_ros.ros.serialized`), one at a time
+with its handlers on the driver thread. Not rclpy's multi-threaded executor: in rclpy 7.1.6 it
+hands a callback to a worker and rebuilds its wait set over every entity of the process again
+before that worker has started (rclpy PR 1547), and its worker threads compete with the driver
+for the GIL. Measured composed, recorded, real time at SCHED_FIFO 50 (docs/performance.md):
+the executor's threads used 37-38 % of a core with three workers, 26-31 % as one thread.
 
 ``--rt-priority N`` puts the driver thread (only it) under SCHED_FIFO. ``--record OUT
 [TOPIC ...]`` runs the recorder node in this process too (``dcsms up --recorder composed``):
@@ -35,7 +40,7 @@ from typing import Any
 
 import yaml
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from dcsms_ros.errors import DcsmsError
@@ -46,10 +51,6 @@ from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
 from dcsms_ros.ros.hotpath import DrivenContext
 from dcsms_ros.ros.runtime import close_nodes, config_error, quiesce, report_hold
 from dcsms_ros.ros.serialized import Serialized, serialize
-
-#: Executor threads: services, timers and parameters of six nodes (a parameter set runs the
-#: stability guard, 6-8 ms, outside the hot locks; the mode switch awaits its calls as tasks).
-EXECUTOR_THREADS = 3
 
 
 def node_class(spec: NodeSpec) -> Any:
@@ -81,7 +82,7 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
         nodes: list[Node] = []
         serials: list[Serialized | None] = []
         recorder: Any = None
-        executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS, context=ctx)
+        executor = SingleThreadedExecutor(context=ctx)
         try:
             if record:
                 recorder = Recorder(record[0], list(record[1:]) or None, context=ctx,

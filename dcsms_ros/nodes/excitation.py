@@ -25,7 +25,6 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import WrenchStamped
-from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import SetBool
@@ -37,6 +36,7 @@ from dcsms_ros.core.supervisor import TRIPPED_STATES
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
@@ -51,7 +51,7 @@ from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.runtime import main_for
 
 
-class ExcitationNode(Node, Hosted):
+class ExcitationNode(GraphNode, Hosted):
     """ROS adapter around :class:`~dcsms_ros.core.excitation.Excitation`."""
 
     hot: HotPath  # every instance has one (Hosted declares it optional)

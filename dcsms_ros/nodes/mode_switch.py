@@ -34,7 +34,6 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import ParameterEvent
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.qos import qos_profile_parameter_events
 from std_msgs.msg import Int64, String
@@ -50,6 +49,7 @@ from dcsms_ros.nodes.mode_switch_clients import ControllerClients
 from dcsms_ros.nodes.mode_switch_supervisor import TableWatch
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.msgs import sample_ns
@@ -65,7 +65,7 @@ from dcsms_ros.ros.runtime import main_for
 from dcsms_ros.ros.stability import StabilityGuard
 
 
-class ModeSwitchNode(Node, Hosted):
+class ModeSwitchNode(GraphNode, Hosted):
     """Supervisor: mode services, trip, stability guard, controller reconciliation."""
 
     hot: HotPath  # every instance has one (Hosted declares it optional)

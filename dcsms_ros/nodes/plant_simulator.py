@@ -29,7 +29,6 @@ from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 
@@ -44,6 +43,7 @@ from dcsms_ros.protocols.barrier import Action, LockstepBarrier
 from dcsms_ros.protocols.pacer import HeldInputs, Pacer
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.guard import FORCE_LIMIT_FACTOR, InputGuard
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
@@ -55,7 +55,7 @@ from dcsms_ros.ros.runtime import main_for
 TRIP = "trip"
 
 
-class PlantSimulatorNode(Node, Hosted):
+class PlantSimulatorNode(GraphNode, Hosted):
     """ROS adapter around :class:`~dcsms_ros.core.simulator.PlantSimulator`."""
 
     hot: HotPath  # every instance has one (Hosted declares it optional)

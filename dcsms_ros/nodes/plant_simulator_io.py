@@ -257,8 +257,9 @@ class PlantIO:
         self.flush_applied()
         wall = time.monotonic() - self._t_run
         self._cpu[1] = time.process_time()
-        over = self.node.pacer.overruns
-        dropped = f", {over} dropped as overruns" if over else ""
+        pacer = self.node.pacer
+        dropped = (f", {pacer.late} late, {pacer.overruns} dropped as overruns"
+                   if pacer.late or pacer.overruns else "")
         self.node.get_logger().info(
             f"finished {self.sim.k} samples ({self.sim.t:.3f} s simulated) in {wall:.2f} s "
             f"wall: {self.sim.k / max(wall, 1e-9):.0f} samples/s{dropped}")
@@ -287,7 +288,8 @@ class PlantIO:
                   "stale_samples": sum(nd.held.stale_samples.values()),
                   "latency_p50_ms": f"{self.latency_hist.quantile(0.5) * 1e3:.4f}",
                   "latency_p99_ms": f"{self.latency_hist.quantile(0.99) * 1e3:.4f}",
-                  "overruns": nd.pacer.overruns, "nonfinite_inputs": self.sim.nonfinite_inputs,
+                  "overruns": nd.pacer.overruns, "late_steps": nd.pacer.late,
+                  "nonfinite_inputs": self.sim.nonfinite_inputs,
                   "rejected_inputs": nd.force_guard.rejected,
                   "saturations": self.sim.saturations, "finished": nd.finished,
                   "hold_sample": hold, "held": hold == self.sim.k and not b.waiting,
@@ -306,7 +308,7 @@ class PlantIO:
             arrays: dict[str, Any] = {
                 "t_pub_ns": np.asarray(self._t_pub, dtype=np.int64),
                 "cpu_s": np.asarray(self._cpu), "rate_hz": self.sim.cfg.plant.rate_hz,
-                "overruns": self.node.pacer.overruns,
+                "overruns": self.node.pacer.overruns, "late_steps": self.node.pacer.late,
                 "stale_samples": sum(self.node.held.stale_samples.values())}
             arrays.update({f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
                            for c, v in self._lat.items()})

@@ -53,6 +53,7 @@ from dcsms_ros.cdr import CLOCK, read_stamp
 from dcsms_ros.errors import BagError, DcsmsError
 from dcsms_ros.ros.connectivity import has_reader
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
+from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hotpath import DetachedGroup, DrivenContext
 from dcsms_ros.ros.transport import widen_udp_receive_buffers
 
@@ -119,7 +120,7 @@ def subscription_qos(profiles: Sequence[Any], depth: int) -> QoSProfile:
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
-class Recorder(Node):
+class Recorder(GraphNode):
     """Record matching topics into a new bag.
 
     Parameters

@@ -17,7 +17,6 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
-from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, StampedWriter
@@ -25,6 +24,7 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
@@ -40,7 +40,7 @@ from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.runtime import main_for
 
 
-class SensorDecouplingNode(Node, Hosted):
+class SensorDecouplingNode(GraphNode, Hosted):
     """ROS adapter around :class:`~dcsms_ros.core.decoupling.Decoupler`."""
 
     hot: HotPath  # every instance has one (Hosted declares it optional)

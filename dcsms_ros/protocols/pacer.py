@@ -1,9 +1,12 @@
 """Real-time pacing of the plant: deadlines, overruns, and held inputs that go stale.
 
-Sample k is due at ``t0 + k / rate``. A plant that fell more than ``max_burst`` samples behind
-does not catch up in a burst: the backlog is dropped (counted as overruns) and the schedule
-moves on from now. Inputs (force commands) are *held*: the newest value of each is used until
-it is older than ``timeout_s``, then it counts as zero (stale).
+Sample k is due at ``t0 + k / rate``. A sample computed once the next one is due already
+(the plant woke more than a period late and catches up) is *late*: it reaches the controllers
+after its deadline, and a keep-last-1 reader then answers only the newest of the burst. A plant
+that fell more than ``max_burst`` samples behind does not catch up in a burst: the backlog is
+dropped (counted as overruns) and the schedule moves on from now. Inputs (force commands) are
+*held*: the newest value of each is used until it is older than ``timeout_s``, then it counts
+as zero (stale).
 """
 
 from __future__ import annotations
@@ -23,7 +26,10 @@ class Pacer:
         self.rate = float(rate_hz)
         self.max_burst = max_burst
         self.t0 = 0.0
+        #: samples dropped from a backlog of more than ``max_burst``
         self.overruns = 0
+        #: samples computed in a catch-up burst, after the next sample was due
+        self.late = 0
 
     def start(self, now: float) -> None:
         """Sample 0 is due at ``now`` (s)."""
@@ -37,6 +43,8 @@ class Pacer:
             self.overruns += due - 1
             self.t0 += (due - 1) / self.rate
             due = 1
+        elif due > 1:
+            self.late += due - 1  # all but the newest of the burst missed their deadline
         return max(due, 0)
 
     def wait_s(self, now: float, k: int) -> float:

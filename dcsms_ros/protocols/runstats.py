@@ -54,6 +54,11 @@ class LatencyHistogram:
         return LATENCY_MAX_S
 
 
+#: Late fraction of a real-time run above which its summary warns (the issue's target for one
+#: process per node).
+LATE_WARN = 0.01
+
+
 @dataclass(frozen=True)
 class RunSummary:
     """One run's figures.
@@ -63,7 +68,9 @@ class RunSummary:
     samples : int
         Samples the plant published.
     late : int
-        Samples that missed their deadline: real-time overruns plus lockstep timeouts.
+        Samples that missed their deadline: in real time those computed after the next
+        sample was due (a catch-up burst) and those dropped as overruns; in lockstep the
+        timeouts.
     stale : int
         Samples at which a controller's force was stale and counted as zero (real time), after
         its first arrival.
@@ -109,6 +116,17 @@ class RunSummary:
                 f"{self.stale}, control latency p50/p99 {_ms(self.latency_p50_s)}/"
                 f"{_ms(self.latency_p99_s)} ms, {rec}")
 
+    def warning(self) -> str | None:
+        """A warning when more than :data:`LATE_WARN` of the samples missed their deadline in
+        real time (None otherwise): the loop that ran then had more delay than the one
+        configured, so its spectra are not the configuration's."""
+        if self.lockstep or not self.samples or self.late <= LATE_WARN * self.samples:
+            return None
+        return (f"{100.0 * self.late / self.samples:.3g} % of the samples missed their "
+                f"deadline: this machine did not keep the graph in real time, and the loop "
+                f"that ran had more delay than the configured one (--lockstep runs it at any "
+                f"speed)")
+
     def to_dict(self) -> dict[str, Any]:
         """The fields, and the late fraction."""
         return {**asdict(self), "late_fraction": self.late / self.samples if self.samples
@@ -143,7 +161,7 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
         except ValueError:
             return math.nan
 
-    late = int(plant.get("overruns", "0")) + int(plant.get("lockstep_timeouts", "0"))
+    late = sum(int(plant.get(k, "0")) for k in ("overruns", "late_steps", "lockstep_timeouts"))
     recorded = scale = sent = None
     if counts is not None:
         present = [s for s in streams if s in counts]
@@ -159,4 +177,4 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
                       published=sent)
 
 
-__all__ = ["LatencyHistogram", "RunSummary", "summarize"]
+__all__ = ["LATE_WARN", "LatencyHistogram", "RunSummary", "summarize"]

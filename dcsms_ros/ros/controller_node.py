@@ -28,7 +28,6 @@ from collections.abc import Callable
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped, WrenchStamped
-from rclpy.node import Node
 from std_msgs.msg import Int64
 from std_srvs.srv import SetBool
 
@@ -43,6 +42,7 @@ from dcsms_ros.protocols.pacer import Watchdog
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.connectivity import has_reader, writer_matched
+from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
@@ -58,7 +58,7 @@ from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.stability import StabilityGuard
 
 
-class ControllerNode(Node, Hosted):
+class ControllerNode(GraphNode, Hosted):
     """Base of :class:`FeedbackControllerNode` and :class:`FeedforwardControllerNode`."""
 
     hot: HotPath  # every instance has one (Hosted declares it optional)

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+import pytest
+
 from dcsms_ros.protocols.pacer import HeldInputs, Pacer, Watchdog
 
 
@@ -13,9 +16,30 @@ def test_deadlines_and_a_dropped_backlog() -> None:
     p.start(100.0)
     assert p.due(100.0, 0) == 1 and p.due(100.0, 1) == 0
     assert math.isclose(p.wait_s(100.0, 1), 0.001)
-    assert p.due(100.0105, 1) == 10  # catching up in a burst
+    assert p.due(100.0105, 1) == 10  # catching up in a burst: 9 of them after their deadline
+    assert p.late == 9 and p.overruns == 0
     assert p.due(100.5, 11) == 1 and p.overruns == 489  # 500 due: 489 dropped, 1 computed
+    assert p.late == 9
     assert math.isclose(p.wait_s(100.5, 12), 0.001, abs_tol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_late_counts_the_samples_computed_after_the_next_was_due(seed: int) -> None:
+    """A plant that wakes with random delays: ``late`` is the number of samples it computed
+    at a time when the following sample was already due, counted from the wake times."""
+    rng = np.random.default_rng(seed)
+    rate, t0 = 1000.0, 50.0
+    p = Pacer(rate, max_burst=20)
+    p.start(t0)
+    k = late = 0
+    now = t0
+    for _ in range(2000):
+        for _ in range(p.due(now, k)):
+            late += now >= t0 + (k + 1) / rate  # the next sample was due already
+            k += 1
+        now = max(now, t0 + k / rate) + rng.exponential(0.4e-3)  # wakes up to ~3 ms late
+    assert p.overruns == 0 and 0 < late < k
+    assert p.late == late
 
 
 def test_held_inputs_go_stale_and_count_it_once() -> None:

@@ -36,8 +36,9 @@ def test_latency_out_of_range_and_empty() -> None:
 
 
 def test_summary_from_a_plant_report_and_bag_counts() -> None:
-    """late = overruns + lockstep timeouts; recorded of expected over the recorded streams."""
-    plant = {"sample": "4000", "overruns": "30", "lockstep_timeouts": "10",
+    """late = overruns + late steps + lockstep timeouts; recorded of expected over the
+    recorded streams."""
+    plant = {"sample": "4000", "overruns": "25", "late_steps": "5", "lockstep_timeouts": "10",
              "stale_samples": "7", "latency_p50_ms": "0.3100", "latency_p99_ms": "1.2000"}
     counts = {"/a": 4000, "/b": 3990, "/dcsms/mode": 3}
     s = summarize(plant, counts, ["/a", "/b", "/c"])
@@ -66,3 +67,17 @@ def test_summary_against_what_was_published() -> None:
     partial = summarize(plant, counts, ["/a", "/b"], {"/a": 4000})
     assert partial.published is None
     assert partial.line().endswith("recorded 7890 stream messages (samples x streams = 8000)")
+
+
+@pytest.mark.parametrize(("late", "schedule", "warns"), [
+    (400, "realtime", False), (401, "realtime", True), (4000, "lockstep", False)])
+def test_a_real_time_run_with_more_than_one_percent_late_warns(late: int, schedule: str,
+                                                              warns: bool) -> None:
+    """Above 1 % of late samples a real-time summary warns (lockstep's timeouts do not delay
+    the loop: the plant waits for the answers)."""
+    s = summarize({"sample": "40000", "late_steps": str(late), "schedule": schedule}, None, [])
+    w = s.warning()
+    assert (w is not None) == warns
+    if warns:
+        assert w is not None and w.startswith("1 % of the samples missed their deadline")
+
