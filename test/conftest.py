@@ -59,6 +59,16 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.unit)
 
 
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    """Why each rerun attempt failed (pytest-rerunfailures lists only its name): a test that
+    passed on a rerun still leaves its first failure in the CI log."""
+    for rep in terminalreporter.stats.get("rerun", []):
+        crash = getattr(rep.longrepr, "reprcrash", None)
+        why = crash.message if crash is not None else str(rep.longrepr)
+        first = why.strip().splitlines()[:3]
+        terminalreporter.write_line(f"RERUN REASON {rep.nodeid}: {' | '.join(first)[:600]}")
+
+
 def pytest_addoption(parser: pytest.Parser) -> None:
     """``--soak``: run the reliability soak for its full duration (10 minutes)."""
     parser.addoption("--soak", action="store_true", default=False,

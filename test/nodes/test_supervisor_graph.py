@@ -6,6 +6,7 @@ for bit. A user's switch to a more active mode during RIDE_THROUGH is refused wi
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -25,6 +26,7 @@ from dcsms_ros.core.config import SystemConfig, with_overrides
 from dcsms_ros.core.engine import simulate
 from dcsms_ros.core.modes import Mode, controller_ids
 from dcsms_ros.core.supervisor import State
+from dcsms_ros.protocols.runstats import LATE_WARN
 
 DURATION_S = 3.5
 QUICK = {"supervisor.recover_after_s": 0.5, "supervisor.settle_s": 0.3}
@@ -117,7 +119,12 @@ def test_realtime_graph_rides_through_the_burst(domain: int, cfg: SystemConfig,
     assert heads == [["ENGAGED", "DFBC+FFC"], ["RIDE_THROUGH", "FBC"],
                      ["RECOVERING", "DFBC+FFC"], ["ENGAGED", "DFBC+FFC"]], labels
     t_ride = float(labels[1].split()[3])
-    assert 0.5 <= t_ride <= 0.7, labels  # the burst starts at 0.5 s
+    # the burst starts at 0.5 s. The trip feed judges the decoupled ground stream, which has
+    # gaps when the graph falls behind real time (the decoupling answers the newest sample of a
+    # catch-up burst): on a machine that left 49 % of the samples late the ride-through came at
+    # 0.7495 s (2026-11-26). The run's own late fraction says which bound applies.
+    late = json.loads((tmp_path / "logs" / "summary.json").read_text())["late_fraction"]
+    assert 0.5 <= t_ride <= (0.7 if late <= LATE_WARN else 1.0), (late, labels)
     assert [cdr.decode_string(m) for m in got[topics.MODE]] == ["DFBC+FFC", "FBC", "DFBC+FFC"]
 
 
