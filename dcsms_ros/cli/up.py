@@ -58,8 +58,10 @@ def add_deploy_options(p: argparse.ArgumentParser, composed: bool = False) -> No
                    "message also goes out on DDS; p99 0.34-0.42 ms; docs/performance.md)")
     p.add_argument("--rt-priority", type=int, default=0, metavar="N",
                    help="run the hot thread of each control-path process (plant, decoupling, "
-                   "controllers; composed: the driver thread) under SCHED_FIFO priority N (1-99; "
-                   "needs root or CAP_SYS_NICE; 0: default scheduler)")
+                   "controllers; composed: the driver thread, with the executor's thread on "
+                   "its core so that it never holds the GIL while the driver computes) under "
+                   "SCHED_FIFO priority N (1-99; needs root or CAP_SYS_NICE; 0: default "
+                   "scheduler)")
     p.add_argument("--allow-unstable", action="store_true",
                    help="let mode switches and tunings the model calls unstable through (the "
                    "instability trip is the last line of defence)")

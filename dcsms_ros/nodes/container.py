@@ -40,7 +40,6 @@ from typing import Any
 
 import yaml
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from dcsms_ros.errors import DcsmsError
@@ -48,7 +47,11 @@ from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, GraphSpec, NodeSpec, spec_fro
 from dcsms_ros.nodes.plant_simulator import PlantSimulatorNode
 from dcsms_ros.nodes.recorder import Recorder
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
+from dcsms_ros.ros.executor import HostExecutor
+from dcsms_ros.ros.graphnode import GraphNode
+from dcsms_ros.ros.hotloop import settle_heap
 from dcsms_ros.ros.hotpath import DrivenContext
+from dcsms_ros.ros.housekeeping import Housekeeper
 from dcsms_ros.ros.runtime import close_nodes, config_error, quiesce, report_hold
 from dcsms_ros.ros.serialized import Serialized, serialize
 
@@ -77,12 +80,17 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
     status = 0
     ctx = DrivenContext("driver")
     loop = ctx.driver
+    if spec.schedule == "lockstep":
+        # a lockstep driver never waits for a deadline: on its core the executor would get
+        # only what the kernel's real-time throttling leaves (the mode switches, the flush)
+        loop.share_core_with = None
     with ros_context(["--ros-args", "--params-file", str(params_file)], signals=True,
                      context=ctx) as ros:
         nodes: list[Node] = []
         serials: list[Serialized | None] = []
         recorder: Any = None
-        executor = SingleThreadedExecutor(context=ctx)
+        executor = HostExecutor(context=ctx)
+        keeper = Housekeeper(executor)  # every node's periodic jobs on one timer
         try:
             if record:
                 recorder = Recorder(record[0], list(record[1:]) or None, context=ctx,
@@ -91,10 +99,15 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
                 executor.add_node(recorder)
             nodes = create_nodes(spec, ctx)
             serials = [serialize(nd) for nd in nodes]  # before any callback can run
+            for nd in [recorder, *nodes]:
+                if isinstance(nd, GraphNode):
+                    keeper.adopt(nd.jobs)
+            keeper.start()
             for nd in nodes:
                 executor.add_node(nd)
             if recorder is not None:  # the in-process topics from their first message on
                 recorder.discover()
+            settle_heap()
             loop.start(rt_priority)
             if loop.rt_warning:
                 nodes[-1].get_logger().warning(loop.rt_warning)
@@ -112,6 +125,7 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
             pass
         finally:
             loop.stop()
+            keeper.stop()  # its timer lives on one node: no job of a destroyed node may run
             for nd, serial in zip(nodes, serials, strict=False):
                 report_hold(nd, serial)
             since = time.time_ns()

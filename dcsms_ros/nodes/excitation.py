@@ -35,7 +35,6 @@ from dcsms_ros.core.excitation import Excitation, check_specs, parse_spec
 from dcsms_ros.core.supervisor import TRIPPED_STATES
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.ros import qos
-from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
@@ -102,7 +101,7 @@ class ExcitationNode(GraphNode, Hosted):
         self.create_subscription(String, topics.LOCAL.supervisor_state, self._on_state,
                                  qos.events())
         self.create_service(SetBool, "~/enable", self._on_enable)
-        steady_timer(self, 1.0, self._report)
+        self.housekeeping(1.0, self._report)
         self.get_logger().info(f"excitation {', '.join(s.text for s in self.specs)} on "
                                f"{self.pub.topic_name}, {'active' if start else 'inactive'}")
         self.hot.start()

@@ -48,7 +48,6 @@ from dcsms_ros.nodes.mode_switch_checkpoints import CheckpointAnswers
 from dcsms_ros.nodes.mode_switch_clients import ControllerClients
 from dcsms_ros.nodes.mode_switch_supervisor import TableWatch
 from dcsms_ros.ros import qos
-from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
@@ -136,9 +135,9 @@ class ModeSwitchNode(GraphNode, Hosted):
             lambda: self.params.cfg.control.lockstep_timeout_s)
             if self.trip_enabled and self.lockstep else None)
         if self.trip_enabled and self.checks is None:
-            steady_timer(self, 0.05, self._judge_timer, MutuallyExclusiveCallbackGroup())
-        steady_timer(self, 0.5, self._reconcile, services)
-        steady_timer(self, 1.0, self._report)
+            self.housekeeping(0.05, self._judge_timer, MutuallyExclusiveCallbackGroup())
+        self.housekeeping(0.5, self._reconcile, services)
+        self.housekeeping(1.0, self._report)
         self._publish_mode()
         self._publish_config()
         self.get_logger().info(f"mode {self.mode.label}; controllers {self.controllers}"
@@ -300,8 +299,8 @@ class ModeSwitchNode(GraphNode, Hosted):
     async def _follow(self) -> None:
         """Switch the controllers to the mode a trip or the supervisor decided (after a
         switch in progress); then report and, in lockstep, answer the plant."""
-        # rclpy's multi-threaded executor may run one trigger of a guard condition more than
-        # once: a second run while the first waits has nothing to do
+        # the executor runs other callbacks while this one awaits the replies: a second
+        # trigger of the guard condition (lockstep) or the judge timer meanwhile has nothing to do
         if self._target is None or self._following:
             return
         self._following = True

@@ -115,7 +115,7 @@ class PlantSimulatorNode(GraphNode, Hosted):
         tick = 1.0 / self.rate if not self.lockstep and not self.hot.on else 0.005
         self._tick_timer = steady_timer(self, tick, self._tick)
         self.hot.set_tick(self._hot_tick)
-        steady_timer(self, opts.status_period_s, self.io.report)
+        self.housekeeping(opts.status_period_s, self.io.report)
         self.get_logger().info(
             f"{self.schedule} at {self.rate:g} Hz, {cfg.plant.num_stages} stages "
             f"({cfg.plant.fidelity}), controllers {self.controllers}"

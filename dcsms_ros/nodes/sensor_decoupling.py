@@ -23,7 +23,6 @@ from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, StampedWriter
 from dcsms_ros.core import topics
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.ros import qos
-from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.ros.hosted import Hosted
@@ -73,7 +72,7 @@ class SensorDecouplingNode(GraphNode, Hosted):
         self.answers = answerer(self, self._publish, lockstep, self.pubs, self.observed)
         self.samples = 0
         self.bad_messages = 0
-        steady_timer(self, 1.0, self._report)
+        self.housekeeping(1.0, self._report)
         self.hot.start()
 
     def _channels(self, key: tuple[str, ...], v: np.ndarray) -> np.ndarray:

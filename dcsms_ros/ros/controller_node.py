@@ -132,7 +132,7 @@ class ControllerNode(GraphNode, Hosted):
             self.hot.set_tick(self._watchdog_tick)
         elif not self.lockstep:
             steady_timer(self, max(self.watchdog.timeout_s / 4.0, 1e-3), self._watchdog_locked)
-        steady_timer(self, 1.0, self._report)
+        self.housekeeping(1.0, self._report)
         self.get_logger().info(f"{cid}: input {topics.LOCAL.velocity(body)}, output "
                                f"{topics.LOCAL.force(cid)}, "
                                f"{'enabled' if enabled else 'disabled'}")

@@ -1,4 +1,5 @@
-"""The rclpy node every node of the package derives from: publishers without event handlers.
+"""The rclpy node every node of the package derives from: publishers without event handlers,
+and periodic jobs declared for the host (:meth:`GraphNode.housekeeping`).
 
 rclpy gives every publisher two QoS-event handlers by default (incompatible QoS, incompatible
 type), each a waitable that the executor adds to its wait set, checks and releases in Python on
@@ -16,16 +17,41 @@ passes its own ``event_callbacks``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
+from rclpy.callback_groups import CallbackGroup
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile
+from rclpy.timer import Timer
+
+from dcsms_ros.ros.clock import steady_timer
+from dcsms_ros.ros.housekeeping import Job
 
 
 class GraphNode(Node):
-    """An rclpy :class:`~rclpy.node.Node` whose publishers have no default event handlers."""
+    """An rclpy :class:`~rclpy.node.Node` whose publishers have no default event handlers.
+
+    Attributes
+    ----------
+    jobs : list of Job
+        The periodic jobs declared with :meth:`housekeeping`.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.jobs: list[Job] = []
+        super().__init__(*args, **kwargs)
+
+    def housekeeping(self, period_s: float, callback: Callable[[], object],
+                     group: CallbackGroup | None = None) -> Timer:
+        """A periodic job: ``callback`` every ``period_s`` s of steady time, on a timer of its
+        own (in ``group``) until a host adopts it (:class:`.housekeeping.Housekeeper`: one
+        timer for the jobs of every node of the process). Returns that timer."""
+        timer = steady_timer(self, period_s, callback, group)
+        self.jobs.append(Job(self, period_s, timer))
+        return timer
 
     def create_publisher(self, msg_type: Any, topic: str, qos_profile: QoSProfile | int, *,
                          event_callbacks: PublisherEventCallbacks | None = None,

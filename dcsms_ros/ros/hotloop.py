@@ -11,12 +11,23 @@ lowers Python's GIL switch interval (:data:`GIL_SWITCH_S`). Composed, the
 the context and dispatches the in-process bus (:mod:`dcsms_ros.protocols.localbus`) in
 publication order until nothing is left.
 
+Composed in real time under SCHED_FIFO, the driver and the executor's thread (the process's
+main thread) share one core (:meth:`HotLoop.prioritize`, ``share_core_with``; not in lockstep,
+where the driver never waits and the executor would starve): the executor then runs only
+while the driver waits for its next deadline, and a driver that wakes preempts it at once.
+On separate cores both ran Python at the same time and the driver, needing the GIL, got every
+other switch interval of it during each executor burst (the trip judge's 50 ms timer, reports,
+wait-set rebuilds): 6-7 % of the samples were late on a 2-core machine, 0.4-0.5 % with the
+shared core (docs/performance.md, "GIL hand-offs"). The other cores are left to the DDS
+threads and the other processes.
+
 ``DCSMS_HOT_PATH=0`` in the environment turns the hot path off (:func:`enabled`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import gc
 import os
 import sys
 import threading
@@ -39,6 +50,17 @@ IDLE_S = 0.1
 #: samples at 2 kHz): composed, recorded, 10 s of real time at SCHED_FIFO 50 were 52-61 % late
 #: with it and 0 % with 0.2 ms (2 runs each, docs/performance.md).
 GIL_SWITCH_S = 2e-4
+
+
+def settle_heap() -> None:
+    """Collect the garbage of the start-up and freeze what survived (:func:`gc.freeze`): the
+    imports and the nodes' objects (~10^6) are then left out of every later collection, so a
+    full collection during the run scans only what the run allocated. Without it a full
+    collection of the composed process took ~49 ms with the GIL held, a hundred samples at
+    2 kHz (``bench/gil_probe.py``). The host calls it once its nodes exist, before the loop
+    starts."""
+    gc.collect()
+    gc.freeze()
 
 
 def enabled() -> bool:
@@ -78,6 +100,16 @@ class HotLoop:
         self.rt_warning: str | None = None
         self.wakeups = 0
         self._subs: list[Subscription] = []
+        #: Native id of a thread to put on the driver's core under SCHED_FIFO (composed: the
+        #: executor's thread; None: no pinning).
+        self.share_core_with: int | None = None
+        #: The core the thread was pinned to (None: not pinned).
+        self.core: int | None = None
+
+    @property
+    def native_id(self) -> int | None:
+        """The running thread's kernel id (None when not running)."""
+        return self._thread.native_id if self._thread is not None else None
 
     def add(self, path: Served) -> None:
         """Serve ``path`` too (before :meth:`start`)."""
@@ -133,7 +165,24 @@ class HotLoop:
         except (OSError, AttributeError) as exc:
             self.rt_warning = (f"SCHED_FIFO priority {rt_priority} refused ({exc}); "
                                f"default scheduler kept")
+            return self.rt_warning
+        if self.share_core_with is not None:
+            self._share_core(thread.native_id, self.share_core_with)
         return self.rt_warning
+
+    def _share_core(self, tid: int, other: int) -> None:
+        """Pin ``tid`` (this loop's thread) and ``other`` to the last core the process may use
+        (none with a single core: nothing to share then)."""
+        cores = sorted(os.sched_getaffinity(0))
+        if len(cores) < 2:
+            return
+        try:
+            os.sched_setaffinity(tid, {cores[-1]})
+            os.sched_setaffinity(other, {cores[-1]})
+        except OSError as exc:
+            self.rt_warning = f"could not put the executor on the driver's core ({exc})"
+            return
+        self.core = cores[-1]
 
     def _run(self, rt_priority: int) -> None:
         if rt_priority:
@@ -206,8 +255,11 @@ class DrivenContext(Context):
     def __init__(self, name: str = "driver") -> None:
         super().__init__()
         self.driver = HotLoop(self, name)
+        # the host's executor spins in the thread that creates the context (the main thread)
+        self.driver.share_core_with = threading.current_thread().native_id
         #: In-process delivery between the nodes (None with the hot path off).
         self.bus: LocalBus | None = LocalBus(wake=self.driver.wake) if enabled() else None
 
 
-__all__ = ["GIL_SWITCH_S", "IDLE_S", "DrivenContext", "HotLoop", "Served", "enabled"]
+__all__ = ["GIL_SWITCH_S", "IDLE_S", "DrivenContext", "HotLoop", "Served", "enabled",
+           "settle_heap"]

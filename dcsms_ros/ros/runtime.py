@@ -30,13 +30,17 @@ from contextlib import nullcontext
 from typing import Any
 
 from rclpy.duration import Duration
-from rclpy.executors import Executor, SingleThreadedExecutor
+from rclpy.executors import Executor
 from rclpy.node import Node
 
 from dcsms_ros import graph
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
+from dcsms_ros.ros.executor import HostExecutor
+from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import Hosted, hot_path
+from dcsms_ros.ros.hotloop import settle_heap
+from dcsms_ros.ros.housekeeping import Housekeeper
 from dcsms_ros.ros.serialized import Serialized, hot_lock, serialize
 
 #: Exit status of a configuration error (the CLI's convention).
@@ -91,9 +95,14 @@ def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
     ``stop()`` is true, the node finished, or the context shut down; a failing hot-path
     handler raises here, as a failing callback would."""
     serial = serialize(node)  # before the executor can run any of its callbacks
+    if isinstance(node, GraphNode):  # its periodic jobs on one timer
+        keeper = Housekeeper(executor)
+        keeper.adopt(node.jobs)
+        keeper.start()
     executor.add_node(node)
     hot = hot_path(node)
     if hot is not None:
+        settle_heap()
         hot.start()
         warning = hot.loop.prioritize(rt_priority) if hot.loop is not None else None
         if warning:
@@ -123,10 +132,13 @@ def report_hold(node: Node, serial: Serialized | None) -> None:
 def quiesce(executor: Executor, node: Node, timeout_s: float = 2.0) -> None:
     """Stop scheduling ``node``'s callbacks and let the running ones finish completely.
 
-    A worker thread triggers the executor's guard condition *after* its callback's work is
-    accounted for; if ``shutdown()`` has destroyed that guard in between, the task stores an
-    ``InvalidHandle`` that rclpy prints at exit ("The following exception was never
-    retrieved: cannot use Destroyable ..."). Waiting here closes that window.
+    The package's executors are single-threaded, so no callback runs while this is called
+    from the spinning thread; the wait covers an executor with worker threads (rclpy's
+    multi-threaded one, which the composed process used before): a worker triggers the
+    executor's guard condition *after* its callback's work is accounted for, and if
+    ``shutdown()`` has destroyed that guard in between, the task stores an ``InvalidHandle``
+    that rclpy prints at exit ("The following exception was never retrieved: cannot use
+    Destroyable ...").
     """
     executor.remove_node(node)
     tracker = getattr(executor, "_work_tracker", None)  # rclpy >= Jazzy
@@ -184,7 +196,7 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None) -> int:
             node = factory(context=ros.context)
             if rt_warning:
                 node.get_logger().warning(rt_warning)
-            executor = SingleThreadedExecutor(context=ros.context)
+            executor = HostExecutor(context=ros.context)
             try:
                 spin_node(node, executor, lambda: bool(ros.stop), rt_priority)
             finally:

@@ -149,3 +149,46 @@ def test_a_driven_context_serves_its_nodes_hot_paths_in_one_thread(ctx, domain: 
         for n in nodes:
             n.destroy_node()
         rclpy.try_shutdown(context=driven)
+
+
+def test_a_real_time_driver_shares_its_core_with_the_executor_thread(domain: int) -> None:
+    """Composed under SCHED_FIFO, the driver and the thread that created the DrivenContext (the
+    host's executor thread) are pinned to one core, the last the process may use, so the
+    executor runs only while the driver waits; without a thread to share with (lockstep) the
+    driver keeps every core. SCHED_FIFO refused: said in ``rt_warning``, nothing pinned."""
+    if len(os.sched_getaffinity(0)) < 2:
+        pytest.skip("one core: nothing to share")
+    me = threading.get_native_id()
+    mine = os.sched_getaffinity(me)
+    for share in (True, False):
+        driven = DrivenContext("share-driver")
+        if not share:
+            driven.driver.share_core_with = None
+        rclpy.init(args=[], context=driven, domain_id=domain)
+        node = Node("share_probe", context=driven)
+        hot = HotPath(node, threading.Lock())
+        hot.subscribe(Header, "share_probe", lambda m: None, 10)
+        try:
+            hot.start()
+            driven.driver.start(rt_priority=5)
+            loop = driven.driver
+            end = time.monotonic() + 2.0  # the thread pins itself as it starts
+            while loop.core is None and loop.rt_warning is None and time.monotonic() < end:
+                time.sleep(0.01)
+            if loop.rt_warning is not None:
+                assert "refused" in loop.rt_warning and loop.core is None
+                continue
+            tid = loop.native_id
+            assert tid is not None
+            if share:
+                last = max(os.sched_getaffinity(0))
+                assert loop.core == last
+                assert os.sched_getaffinity(tid) == {last} == os.sched_getaffinity(me)
+            else:
+                assert loop.core is None and os.sched_getaffinity(tid) == mine
+        finally:
+            os.sched_setaffinity(me, mine)  # the test runner's thread gets its cores back
+            driven.driver.stop()
+            hot.stop()
+            node.destroy_node()
+            rclpy.try_shutdown(context=driven)
