@@ -22,7 +22,14 @@ before that worker has started (rclpy PR 1547), and its worker threads compete w
 for the GIL. Measured composed, recorded, real time at SCHED_FIFO 50 (docs/performance.md):
 the executor's threads used 37-38 % of a core with three workers, 26-31 % as one thread.
 
-``--rt-priority N`` puts the driver thread (only it) under SCHED_FIFO. ``--record OUT
+The executor is :class:`~dcsms_ros.ros.executor.HostExecutor` (no wake-up after every
+callback), the nodes' periodic jobs run from one timer
+(:class:`~dcsms_ros.ros.housekeeping.Housekeeper`), and the start-up heap is frozen before the
+driver starts (:func:`~dcsms_ros.ros.hotloop.settle_heap`).
+
+``--rt-priority N`` puts the driver thread (only it) under SCHED_FIFO and, in real time, the
+executor's thread on the driver's core, where it runs only while the driver waits
+(:mod:`dcsms_ros.ros.hotloop`). ``--record OUT
 [TOPIC ...]`` runs the recorder node in this process too (``dcsms up --recorder composed``):
 it takes the graph's messages from the bus, every one of them, in lockstep and in real time.
 Exit status: 0 after SIGINT/SIGTERM or a finished run, 2 after a configuration error (one line).

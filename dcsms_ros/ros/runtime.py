@@ -1,8 +1,10 @@
 """``main()`` of every node process: build the node, spin it, close it (:func:`run`).
 
-Executor: :class:`rclpy.executors.SingleThreadedExecutor` for what is not per sample
-(parameters, services, timers); a callback that waits for service replies is an ``async def``
-(``mode_switch``'s switch), which the executor runs as a task between other callbacks. Before
+Executor: :class:`.executor.HostExecutor` (rclpy's single-threaded one, without its wake-up
+after every callback) for what is not per sample (parameters, services, timers; the node's
+periodic jobs on one timer, :mod:`.housekeeping`); a callback that waits for service
+replies is an ``async def`` (``mode_switch``'s switch), which the executor runs as a task
+between other callbacks. Before
 the executor gets the node, its callbacks are wrapped to run under the node's hot-path lock
 (:mod:`.serialized`): node code never locks. The per-sample
 subscriptions do not go through the executor at all: a node's :class:`~.hotpath.HotPath`

@@ -41,7 +41,9 @@ def test_graph_replays_a_recorded_ground_like_the_batch_engine(domain, cfg, tmp_
 
 def _check_summary(stdout: str, bag: Path, num_stages: int, samples: int) -> None:
     """The run's summary line: every sample on time, and the recorded count of the per-sample
-    topics equal to the bag's own (read with rosbags), one message per sample and topic."""
+    topics equal to the bag's own (read with rosbags) and to what was published: one message
+    per sample and topic, plus the repeats of a lockstep retry (the plant publishes a sample
+    again when an answer is late; 4-20 of 11,000 in 3 of 7 runs on a loaded 2-core machine)."""
     line = next(x for x in stdout.splitlines() if x.startswith("dcsms up: summary: "))
     assert line.startswith(f"dcsms up: summary: samples {samples}, late 0 (0 %), "), line
     bodies = topics.body_names(num_stages)
@@ -52,5 +54,5 @@ def _check_summary(stdout: str, bag: Path, num_stages: int, samples: int) -> Non
     with AnyReader([bag]) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections if c.topic in streams}
     recorded = sum(counts.values())
-    assert f"recorded {recorded} of {samples * len(counts)} messages" in line, (line, counts)
+    assert f"recorded {recorded} of {recorded} messages" in line, (line, counts)
     assert recorded >= samples * len(counts)  # lockstep loses nothing (a retry may repeat one)
