@@ -126,6 +126,11 @@ CPU_WHY = ("NOT met: per input message ~40-50 us go to Fast DDS's receive thread
            "shared memory; UDP since 2026-11-26 costs the plant 1.1x, the decoupling 1.2x) and the "
            "SCHED_FIFO wake-up with its mutex hand-off before any Python runs (perf, "
            "docs/performance.md); the Python per sample is 16 us warm")
+#: Why the composed real-time row misses its target where it does (docs/performance.md,
+#: "Where the composed late samples come from").
+COMPOSED_LATE_WHY = ("; NOT met where the driver thread needs ~70-75 % of a core at 2 kHz: "
+                     "the tail of its own iteration (p99 ~0.5 ms) reaches the period, 58 % of "
+                     "late gaps busy in the driver, 35 % waiting (docs/performance.md)")
 #: What the deadline-miss rows measure, beside issue 21's late + stale.
 MISS_WHY = ("the jitter of the plant's publication period; a late period is caught up within "
             "20 samples, so it is not a late sample (issue 21 counts late + stale: "
@@ -245,7 +250,8 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
                   "unit": "", "target_max": 1e-3,
                   "note": f"late {r['late']} of {samples} samples, stale forces "
                           f"{r['stale']} of {samples * r['controllers']}; "
-                          f"{_recorded(r, samples)}; --rt-priority {0 if smoke else 50}"})
+                          f"{_recorded(r, samples)}; --rt-priority {0 if smoke else 50}"
+                          + (COMPOSED_LATE_WHY if r["late"] > 1e-3 * samples else "")})
     rows += rt
     rows.append(_demo_row(smoke, tmp))
     return rows

@@ -72,7 +72,7 @@ class Endpoint:
 @dataclass
 class Inbox(Endpoint):
     """A queue of ``(data, t_ns)`` (``t_ns``: publication time, the bus clock's ns) that its
-    owner empties with :meth:`drain`."""
+    owner empties with :meth:`drain` or :meth:`take`."""
 
     queue: deque[tuple[bytes, int]] = field(default_factory=deque)
 
@@ -86,6 +86,12 @@ class Inbox(Endpoint):
             handler(data, t_ns)
             n += 1
         return n
+
+    def take(self, limit: int = 100000) -> list[bytes]:
+        """The queued messages' data, oldest first (at most ``limit``), taken off the queue
+        (a block for a batch decoder: no call per message)."""
+        q = self.queue
+        return [q.popleft()[0] for _ in range(min(len(q), limit))]
 
 
 @dataclass

@@ -13,13 +13,12 @@ counts zero there (real time), as the trip feed does.
 
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from dcsms_ros.core.checkpoints import CheckpointFeed
 from dcsms_ros.core.supervisor import Supervisor, Transition
+from dcsms_ros.protocols.stampedrows import StampedRows
 from dcsms_ros.protocols.tripfeed import TripFeed
 
 Array = NDArray[np.float64]
@@ -41,40 +40,34 @@ class SupervisedFeed:
                  supervisor: Supervisor) -> None:
         self.feed, self.cp, self.sup = feed, checkpoints, supervisor
         self.dof = feed.checker.dof
-        self._ground: deque[tuple[int, Array]] = deque()
-        self._force: deque[tuple[int, Array]] = deque()
-        self._newest_ground = -1
-        self._newest_force = -1
-        self._pending: list[list[Array]] = []  # stage rows of the open checkpoint block
-        self._pending_ground: list[Array] = []  # its ground rows
+        self._ground = StampedRows(self.dof)
+        self._force = StampedRows(checkpoints.limit.size)
+        n = len(feed.checker.monitors)
+        # the open checkpoint block: its stage rows (K, n, dof) and ground rows (K, dof)
+        self._pending = np.zeros((0, n, self.dof))
+        self._pending_ground = np.zeros((0, self.dof))
 
-    def add_ground(self, stamp_ns: int, v: Array) -> None:
+    def add_ground(self, stamp_ns: int, v: ArrayLike) -> None:
         """Ground twist ``v`` (dof,) m/s of the sample stamped ``stamp_ns``."""
-        if stamp_ns > self._newest_ground:
-            self._newest_ground = stamp_ns
-            self._ground.append((stamp_ns, v))
+        self._ground.extend([stamp_ns], v)
 
-    def add_force(self, stamp_ns: int, f: Array) -> None:
+    def add_force(self, stamp_ns: int, f: ArrayLike) -> None:
         """Applied actuator forces ``f`` (n_actuators,) N of the sample stamped ``stamp_ns``."""
-        if stamp_ns > self._newest_force:
-            self._newest_force = stamp_ns
-            self._force.append((stamp_ns, f))
+        self._force.extend([stamp_ns], f)
 
-    def add_grounds(self, stamps: Array, v: Array) -> None:
+    def add_grounds(self, stamps: ArrayLike, v: ArrayLike) -> None:
         """Ground twists of several samples: stamps (K,) ns, ``v`` (K, dof) m/s."""
-        for s, row in zip(stamps.tolist(), v, strict=True):
-            self.add_ground(s, row)
+        self._ground.extend(stamps, v)
 
-    def add_forces(self, stamps: Array, f: Array) -> None:
+    def add_forces(self, stamps: ArrayLike, f: ArrayLike) -> None:
         """Applied forces of several samples: stamps (K,) ns, ``f`` (K, n_actuators) N."""
-        for s, row in zip(stamps.tolist(), f, strict=True):
-            self.add_force(s, row)
+        self._force.extend(stamps, f)
 
     def complete(self, through_ns: int) -> bool:
         """Lockstep: every stream holds what the checkpoint ending at ``through_ns`` needs."""
         k = self.feed.index(through_ns)
-        return (self.feed.complete_ns() >= through_ns and self._newest_ground >= through_ns
-                and (k == 0 or self.feed.index(self._newest_force) >= k - 1))
+        return (self.feed.complete_ns() >= through_ns and self._ground.newest >= through_ns
+                and (k == 0 or self.feed.index(self._force.newest) >= k - 1))
 
     def newest_sample(self) -> int:
         """Index of the newest sample any stage stream has (-1: none)."""
@@ -85,43 +78,36 @@ class SupervisedFeed:
         """Judge every checkpoint whose rows are in (:meth:`TripFeed.take`); the
         supervisor's transitions, in order."""
         stamps, rows = self.feed.take(through_ns)
+        if not stamps.size:
+            return []
+        # a stream that lacks a sample counts zero there
+        ground = self._ground.take_at(stamps)
+        rows = np.concatenate([self._pending, rows])
+        ground = np.concatenate([self._pending_ground, ground])
+        off = self._pending.shape[0]
+        ends = np.flatnonzero((self.feed.indices(stamps) + 1) % self.feed.checker.every == 0)
         out: list[Transition] = []
-        every = self.feed.checker.every
-        for s, row in zip(stamps, rows, strict=True):
-            self._pending.append(row)
-            self._pending_ground.append(self._take_ground(s))
-            k = self.feed.index(s)
-            if (k + 1) % every:
-                continue
+        begin = 0
+        for j in ends.tolist():
+            s, end = int(stamps[j]), off + j + 1
             # one filter call per checkpoint block (the same numbers as row by row)
-            self.feed.checker.push(np.asarray(self._pending, dtype=np.float64))
-            self.cp.feed_ground(np.asarray(self._pending_ground, dtype=np.float64))
-            self._pending, self._pending_ground = [], []
-            self._feed_forces_before(s)
-            tr = self.sup.step(self.cp.checkpoint(k, self.feed.checker))
+            self.feed.checker.push(rows[begin:end])
+            self.cp.feed_ground(ground[begin:end])
+            begin = end
+            # forces of the samples before the checkpoint's last count in it
+            _, forces = self._force.take(s, inclusive=False)
+            self.cp.feed_force(forces)
+            tr = self.sup.step(self.cp.checkpoint(self.feed.index(s), self.feed.checker))
             if tr is not None:
                 out.append(tr)
+        self._pending, self._pending_ground = rows[begin:].copy(), ground[begin:].copy()
         return out
-
-    def _take_ground(self, s: int) -> Array:
-        while self._ground and self._ground[0][0] < s:
-            self._ground.popleft()
-        if self._ground and self._ground[0][0] == s:
-            return self._ground.popleft()[1]
-        return np.zeros(self.dof)
-
-    def _feed_forces_before(self, s: int) -> None:
-        """Forces of the samples before ``s`` count in the checkpoint ending at ``s``."""
-        rows = []
-        while self._force and self._force[0][0] < s:
-            rows.append(self._force.popleft()[1])
-        if rows:
-            self.cp.feed_force(np.asarray(rows, dtype=np.float64))
 
     def reset(self) -> None:
         """After ``reset_trip``: the trip feed realigns to the next checkpoint block."""
         self.feed.reset()
-        self._pending, self._pending_ground = [], []
+        self._pending = self._pending[:0]
+        self._pending_ground = self._pending_ground[:0]
 
 
 __all__ = ["SupervisedFeed"]

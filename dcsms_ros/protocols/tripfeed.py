@@ -11,12 +11,11 @@ up to a requested stamp (lockstep: the checkpoint the plant asks about) or as fa
 
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from dcsms_ros.core.trip import Trip, TripChecker
+from dcsms_ros.protocols.stampedrows import StampedRows, Stamps
 
 Array = NDArray[np.float64]
 NS = 1_000_000_000
@@ -44,9 +43,7 @@ class TripFeed:
     def __init__(self, checker: TripChecker, rate_hz: float) -> None:
         self.checker = checker
         self.rate = float(rate_hz)
-        n = len(checker.monitors)
-        self._queues: list[deque[tuple[int, Array]]] = [deque() for _ in range(n)]
-        self._newest = [-1] * n
+        self._streams = [StampedRows(checker.dof) for _ in checker.monitors]
         self.judged_ns = -1
         self.trip_ns = -1
         self.gaps = 0
@@ -56,20 +53,26 @@ class TripFeed:
         """Sample index of a stamp."""
         return int(round(stamp_ns * self.rate / NS))
 
-    def add(self, stage: int, stamp_ns: int, v: Array) -> None:
+    def indices(self, stamps: Stamps) -> NDArray[np.int64]:
+        """Sample indices of stamps (K,) ns, as :meth:`index` rounds them."""
+        return np.rint(stamps * self.rate / NS).astype(np.int64)
+
+    def add(self, stage: int, stamp_ns: int, v: ArrayLike) -> None:
         """Velocity ``v`` (dof,) m/s of stage ``stage`` (0-based) stamped ``stamp_ns``."""
-        if stamp_ns <= self._newest[stage] or stamp_ns <= self.judged_ns:
-            return  # a repeat (retransmission) or older
-        self._newest[stage] = stamp_ns
-        self._queues[stage].append((stamp_ns, v))
+        self.add_block(stage, np.array([stamp_ns], dtype=np.int64), v)
+
+    def add_block(self, stage: int, stamps: ArrayLike, v: ArrayLike) -> None:
+        """Velocities ``v`` (K, dof) m/s of stage ``stage`` stamped ``stamps`` (K,) ns; a
+        repeat (retransmission) or an older or already judged stamp is dropped."""
+        self._streams[stage].extend(stamps, v, floor=self.judged_ns)
 
     def newest_ns(self) -> int:
         """Newest stamp any stage has arrived at (-1: none)."""
-        return max(self._newest)
+        return max(s.newest for s in self._streams)
 
     def complete_ns(self) -> int:
         """Newest stamp every stage has arrived at (-1 while one has nothing)."""
-        return min(self._newest)
+        return min(s.newest for s in self._streams)
 
     def judge(self, through_ns: int | None = None, lag_ns: int = 10_000_000) -> Trip | None:
         """Give the checker every aligned row of :meth:`take`.
@@ -78,55 +81,66 @@ class TripFeed:
         None.
         """
         stamps, rows = self.take(through_ns, lag_ns)
-        if not rows:
+        if not stamps.size:
             return None
-        used, trip = self.checker.push(np.asarray(rows, dtype=np.float64))
+        used, trip = self.checker.push(rows)
         if trip is not None:
-            self.trip_ns = stamps[used - 1]
+            self.trip_ns = int(stamps[used - 1])
         return trip
 
     def take(self, through_ns: int | None = None, lag_ns: int = 10_000_000
-             ) -> tuple[list[int], list[list[Array]]]:
-        """The aligned rows (stamps, one velocity per stage) up to ``through_ns`` (lockstep:
-        each stage must have it) or, without it (real time), every row older than ``lag_ns``
-        before the newest sample any stage has, a stage that lacks one counting zero there (a
-        silent stream must not blind the trip); they count as judged."""
-        strict = through_ns is not None
-        upto = (min(self.complete_ns(), through_ns) if through_ns is not None
-                else max(self._newest) - lag_ns)
-        rows, stamps = [], []
-        while True:
-            heads = [q[0][0] for q in self._queues if q]
-            if not heads or (strict and len(heads) < len(self._queues)):
-                break
-            s = max(heads) if strict else min(heads)
-            if s > upto:
-                break
-            if strict and min(heads) != s:  # a stage lacks this sample: drop the older heads
-                for q in self._queues:
-                    if q[0][0] < s:
-                        q.popleft()
-                continue
-            k = self.index(s)
-            row = [q.popleft()[1] if q and q[0][0] == s else np.zeros(self.checker.dof)
-                   for q in self._queues]
-            if self._align and k % self.checker.every:
-                self.judged_ns = s  # after a reset: wait for a checkpoint block's start
-                continue
-            if self.judged_ns >= 0 and not self._align:
-                self.gaps += max(k - self.index(self.judged_ns) - 1, 0)
+             ) -> tuple[Stamps, Array]:
+        """The aligned rows up to ``through_ns`` (lockstep: only samples every stage has) or,
+        without it (real time), every row older than ``lag_ns`` before the newest sample any
+        stage has, a stage that lacks one counting zero there (a silent stream must not blind
+        the trip); they count as judged.
+
+        Returns
+        -------
+        stamps : ndarray of int64, shape (K,)
+            ns, increasing.
+        rows : ndarray, shape (K, num_stages, dof)
+            m/s.
+        """
+        if through_ns is not None:
+            upto = min(self.complete_ns(), through_ns)
+            # a sample some stage lacks never completes (no stage takes an older stamp)
+            parts = [st.take(upto) for st in self._streams]
+            stamps = parts[0][0]
+            for s, _ in parts[1:]:
+                stamps = np.intersect1d(stamps, s, assume_unique=True)
+        else:
+            upto = self.newest_ns() - lag_ns
+            parts = [st.take(upto) for st in self._streams]
+            stamps = np.unique(np.concatenate([s for s, _ in parts]))
+        rows = np.zeros((stamps.size, len(parts), self.checker.dof))
+        if not stamps.size:
+            return stamps, rows
+        for i, (s, v) in enumerate(parts):
+            idx = np.minimum(np.searchsorted(stamps, s), stamps.size - 1)
+            hit = stamps[idx] == s
+            rows[idx[hit], i] = v[hit]
+        k = self.indices(stamps)
+        if self._align:
+            # after a reset: wait for a checkpoint block's start
+            start = np.flatnonzero(k % self.checker.every == 0)
+            if not start.size:
+                self.judged_ns = int(stamps[-1])
+                return stamps[:0], rows[:0]
+            stamps, rows, k = stamps[start[0]:], rows[start[0]:], k[start[0]:]
             self._align = False
-            rows.append(row)
-            stamps.append(s)
-            self.judged_ns = s
+        elif self.judged_ns >= 0:
+            k = np.concatenate(([self.index(self.judged_ns)], k))
+        self.gaps += int(np.maximum(np.diff(k) - 1, 0).sum())
+        self.judged_ns = int(stamps[-1])
         return stamps, rows
 
     def reset(self) -> None:
         """Forget the history; feeding resumes at the next checkpoint block's first sample, so
         the checkpoints keep their sample indices."""
         self.checker.reset()
-        for q in self._queues:
-            q.clear()
+        for st in self._streams:
+            st.clear()
         self.trip_ns = -1
         self._align = True
 

@@ -86,7 +86,8 @@ class HotLoop:
     After each wake-up it empties every path's subscriptions (composed, in passes with the
     bus until a pass takes nothing: a handler's publication is another node's input), then the
     ticks; it waits on a wait set of all the subscriptions and a guard condition for at most
-    the shortest time a tick asked for.
+    the shortest time a tick asked for (on a :class:`threading.Event` when it serves no DDS
+    subscription: composed, with every topic in-process).
     """
 
     def __init__(self, context: Context, name: str) -> None:
@@ -96,6 +97,9 @@ class HotLoop:
         self._stop = False
         self._thread: threading.Thread | None = None
         self._guard: GuardCondition | None = None
+        # a loop with no DDS subscription to serve (composed, every topic in-process) waits on
+        # this instead of an rcl wait set: ~2 us of CPU against ~33 us for rcl_wait(0)
+        self._event = threading.Event()
         self.error: BaseException | None = None
         self.rt_warning: str | None = None
         self.wakeups = 0
@@ -131,12 +135,14 @@ class HotLoop:
 
     def wake(self) -> None:
         """Run the ticks now."""
-        if self._guard is not None:
+        self._event.set()
+        if self._guard is not None and self._subs:
             self._guard.trigger()
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Ask the thread to end and wait for it (idempotent)."""
         self._stop = True
+        self._event.set()
         if self._thread is not None:
             if self._guard is not None:
                 with contextlib.suppress(Exception):
@@ -150,6 +156,7 @@ class HotLoop:
 
     def _on_shutdown(self) -> None:
         self._stop = True
+        self._event.set()
         if self._guard is not None:
             with contextlib.suppress(Exception):  # the context may be gone already
                 self._guard.trigger()
@@ -212,7 +219,15 @@ class HotLoop:
             handles = [s.handle for s in subs]
             timeout = IDLE_S
             while not self._stop:
-                if bus is None or not bus.pending:  # else go on delivering at once
+                if (bus is None or not bus.pending) and not handles:
+                    # cleared after the wait: a wake() from now on is seen by the next one,
+                    # and what an earlier one announced is delivered by the pass below
+                    self._event.wait(timeout)
+                    self._event.clear()
+                    self.wakeups += 1
+                    if self._stop:
+                        break
+                elif bus is None or not bus.pending:  # else go on delivering at once
                     ws.clear_entities()
                     for h in handles:
                         ws.add_subscription(h)

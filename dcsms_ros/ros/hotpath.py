@@ -196,7 +196,7 @@ class HotPath:
 
     def detached(self, msg_type: Any, topic: str, qos: QoSProfile,
                  raw: bool = False) -> Subscription:
-        """A subscription nobody waits on; empty it with :meth:`drain`."""
+        """A subscription nobody waits on; empty it with :meth:`take` or :meth:`drain_timed`."""
         sub = self._reader(msg_type, topic, lambda m: None, qos, raw)
         if self.bus is not None and raw:
             box = self._local(sub.topic_name, None)
@@ -204,15 +204,22 @@ class HotPath:
             self._inboxes[sub] = box
         return sub
 
-    def drain(self, sub: Subscription, handler: Callable[[Any], None],
-              limit: int = 100000) -> int:
-        """Take every queued message of detached ``sub`` (at most ``limit``), oldest first."""
-        return self.drain_timed(sub, lambda data, _: handler(data), limit)
+    def take(self, sub: Subscription, limit: int = 100000) -> list[Any]:
+        """Every queued message of detached ``sub`` (at most ``limit``), oldest first, taken
+        off its queue."""
+        if sub not in self._replaced:
+            box = self._inboxes.get(sub)
+            if box is not None and not self.served_from_dds(sub):
+                return box.take(limit)
+        out: list[Any] = []
+        self.drain_timed(sub, lambda data, _: out.append(data), limit)
+        return out
 
     def drain_timed(self, sub: Subscription, handler: Callable[[Any, int], None],
                     limit: int = 100000) -> int:
-        """:meth:`drain` with each message's arrival, ``handler(msg, t_ns)`` (system clock,
-        ns: DDS reception, or in-process publication)."""
+        """Take every queued message of detached ``sub`` (at most ``limit``), oldest first,
+        with its arrival: ``handler(msg, t_ns)`` (system clock, ns: DDS reception, or
+        in-process publication)."""
         if sub in self._replaced:  # no in-process writer: its DDS reader with the QoS asked
             sub = self._replaced[sub]
         else:

@@ -10,6 +10,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import rclpy
 from rclpy.node import Node
@@ -17,6 +18,7 @@ from std_msgs.msg import Header
 
 from dcsms_ros.cli.deploy import children
 from dcsms_ros.graph import define_graph
+from dcsms_ros.ros.hotloop import IDLE_S
 from dcsms_ros.ros.hotpath import GIL_SWITCH_S, DrivenContext, HotPath
 from dcsms_ros.ros.runtime import RT_PRIORITY_ENV, rt_priority_from_env
 
@@ -192,3 +194,42 @@ def test_a_real_time_driver_shares_its_core_with_the_executor_thread(domain: int
             hot.stop()
             node.destroy_node()
             rclpy.try_shutdown(context=driven)
+
+
+def test_a_loop_without_dds_subscriptions_sleeps_until_woken(ctx) -> None:
+    """A loop serving no DDS subscription (composed, every topic in-process) waits on an
+    event, not an rcl wait set: a wake() from another thread runs its tick at once, long
+    before the loop's idle wake-up (IDLE_S), and stop() ends it at once."""
+    node = Node("tick_only", context=ctx)
+    hot = HotPath(node, threading.Lock())
+    ticks: list[float] = []
+
+    def tick() -> float:
+        ticks.append(time.monotonic())
+        return 10.0
+
+    hot.set_tick(tick)
+    try:
+        hot.start()
+        assert hot.loop is not None and not hot.subs
+        end = time.monotonic() + 5.0
+        while not ticks:
+            assert time.monotonic() < end, "the loop never ticked"
+            time.sleep(0.01)
+        time.sleep(0.5)
+        idle = np.diff(ticks)
+        assert idle.min() > 0.8 * IDLE_S  # asleep between idle wake-ups
+        for _ in range(5):
+            n, t0 = len(ticks), time.monotonic()
+            hot.wake()
+            while len(ticks) == n:
+                assert time.monotonic() - t0 < 2.0, "a wake() did not run the tick"
+                time.sleep(0.0005)
+            assert ticks[-1] - t0 < 0.25 * IDLE_S
+            time.sleep(0.02)
+        t0 = time.monotonic()
+        hot.stop()
+        assert time.monotonic() - t0 < 1.0 and hot.loop._thread is None
+    finally:
+        hot.stop()
+        node.destroy_node()

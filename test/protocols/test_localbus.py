@@ -102,6 +102,11 @@ def test_inbox_queues_with_publication_time_and_drains_in_blocks() -> None:
     assert box.drain(lambda d, t: got.append((d, t))) == 6
     assert got == [(b"%d" % k, 1000 * (k + 1)) for k in range(10)]
     assert box.delivered == 10 and not box.queue
+    for k in range(10, 15):
+        w.publish(b"%d" % k)
+    bus.dispatch()
+    assert box.take(limit=2) == [b"10", b"11"]
+    assert box.take() == [b"12", b"13", b"14"] and box.take() == []
 
 
 def test_remote_counts_only_readers_outside_the_process() -> None:

@@ -98,3 +98,23 @@ def test_realtime_feeding_in_chunks_and_any_order_decides_the_same(
         got += feed.step()  # real time: every row older than the lag
     got += feed.step(sample_ns(res.t.size - 1, rate))
     assert got == res.supervision
+
+
+@pytest.mark.parametrize("chunk", [37, 250])
+def test_realtime_feeding_drained_blocks_decides_the_same(
+        burst: tuple[SystemConfig, SimResult], chunk: int) -> None:
+    """The node drains each queue as one block (forces first, stages last): the same
+    transitions as the batch engine."""
+    cfg, res = burst
+    feed = _feed(cfg)
+    stamps = np.array([sample_ns(k, cfg.plant.rate_hz) for k in range(res.t.size)])
+    got = []
+    for k0 in range(0, res.t.size, chunk):
+        sl = slice(k0, k0 + chunk)
+        feed.add_forces(stamps[sl], res.applied[sl])
+        feed.add_grounds(stamps[sl], res.velocity[sl, 0])
+        for i in range(res.velocity.shape[1] - 1):
+            feed.feed.add_block(i, stamps[sl], res.velocity[sl, i + 1])
+        got += feed.step()
+    got += feed.step(int(stamps[-1]))
+    assert got == res.supervision

@@ -4,6 +4,7 @@ trip on the same sample as the whole series pushed at once."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from dcsms_ros.core.config import ControlConfig
 from dcsms_ros.core.trip import TripChecker
@@ -65,3 +66,38 @@ def test_reset_resumes_at_a_checkpoint_block() -> None:
         feed.add(0, k * NS, np.zeros(1))
     feed.judge(lag_ns=0)
     assert feed.checker.k == 60 and feed.judged_ns == 259 * NS  # fed from sample 200 on
+
+
+@pytest.mark.parametrize("lockstep", [True, False])
+def test_blocks_with_repeats_and_a_lost_sample_give_the_rows_of_every_sample(
+        lockstep: bool) -> None:
+    """Drained queues (blocks that repeat samples) and messages one by one give the checker
+    every sample's rows; a sample lost on one stage is a gap in lockstep (the row is left
+    out) and a zero in real time."""
+    v = _series()[:400]
+    lost = 123  # stage 2 never gets this sample
+    stamps = np.arange(v.shape[0]) * NS
+    feeds = [TripFeed(TripChecker(ControlConfig(), RATE, 2, 1), RATE) for _ in range(2)]
+    one, blk = feeds
+    for k in range(v.shape[0]):
+        one.add(0, int(stamps[k]), v[k, 0])
+        if k != lost:
+            one.add(1, int(stamps[k]), v[k, 1])
+    for j in range(0, v.shape[0], 64):
+        sl = slice(max(j - 3, 0), j + 64)  # each block repeats the last 3 of the one before
+        blk.add_block(0, stamps[sl], v[sl, 0])
+        keep = [k for k in range(sl.start, min(sl.stop, v.shape[0])) if k != lost]
+        blk.add_block(1, stamps[keep], v[keep, 1])
+    want = v.copy()
+    if lockstep:
+        want = np.delete(want, lost, axis=0)
+        want_stamps = np.delete(stamps, lost)
+    else:
+        want[lost, 1] = 0.0
+        want_stamps = stamps
+    through = int(stamps[-1]) if lockstep else None
+    for feed in feeds:
+        got, rows = feed.take(through, lag_ns=0)
+        np.testing.assert_array_equal(got, want_stamps)
+        np.testing.assert_array_equal(rows, want)
+        assert feed.gaps == (1 if lockstep else 0) and feed.judged_ns == stamps[-1]
