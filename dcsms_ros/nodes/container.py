@@ -106,10 +106,7 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
                 executor.add_node(recorder)
             nodes = create_nodes(spec, ctx)
             serials = [serialize(nd) for nd in nodes]  # before any callback can run
-            for nd in [recorder, *nodes]:
-                if isinstance(nd, GraphNode):
-                    keeper.adopt(nd.jobs)
-            keeper.start()
+            keeper.keep(*(nd.jobs for nd in [recorder, *nodes] if isinstance(nd, GraphNode)))
             for nd in nodes:
                 executor.add_node(nd)
             if recorder is not None:  # the in-process topics from their first message on

@@ -355,9 +355,7 @@ def record(out: str, topics: Sequence[str] | None = None, storage: str | None = 
                                   context=ros.context)
             widen_udp_receive_buffers()  # ~0.4 s of the full graph kept while off its core
             executor = HostExecutor(context=ros.context)
-            keeper = Housekeeper(executor)  # flush, discovery and report on one timer
-            keeper.adopt(rec.jobs)
-            keeper.start()
+            Housekeeper(executor).keep(rec.jobs)  # flush, discovery and report on one timer
             executor.add_node(rec)
             spin_until(executor, lambda: bool(ros.stop) or rec.expired())
             node.drain(executor, ros.stop.at_ns or time.time_ns())

@@ -94,6 +94,13 @@ class Housekeeper:
             job.timer = None
             self.jobs.append(job)
 
+    def keep(self, *jobs: Sequence[Job]) -> Housekeeper:
+        """Adopt every list of ``jobs`` and :meth:`start`; returns self."""
+        for js in jobs:
+            self.adopt(js)
+        self.start()
+        return self
+
     def start(self) -> None:
         """Create the one timer (on the first adopted job's node); nothing without jobs."""
         if not self.jobs or self.timer is not None:

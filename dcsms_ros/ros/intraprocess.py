@@ -81,10 +81,14 @@ class BusPublisher(_Wrapped):
                      else None)
         #: Messages also published on DDS.
         self.on_dds = 0
+        # the handle's own count: 0.23 us a call against 1.03 us through rclpy's wrapper, which
+        # enters the handle each time (asked at every publication); the handle outlives the
+        # loop that publishes, as DirectPublisher's does
+        self._matched = pub.handle.get_subscription_count
 
     def remote(self) -> bool:
         """True while a reader outside this process is matched."""
-        return self.bus.remote(self.writer.name, self.pub.get_subscription_count())
+        return self.bus.remote(self.writer.name, self._matched())
 
     def publish(self, data: bytes) -> None:
         """Hand ``data`` (serialized) to the in-process subscribers, and to DDS when a remote

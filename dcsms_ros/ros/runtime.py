@@ -98,9 +98,7 @@ def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
     handler raises here, as a failing callback would."""
     serial = serialize(node)  # before the executor can run any of its callbacks
     if isinstance(node, GraphNode):  # its periodic jobs on one timer
-        keeper = Housekeeper(executor)
-        keeper.adopt(node.jobs)
-        keeper.start()
+        Housekeeper(executor).keep(node.jobs)
     executor.add_node(node)
     hot = hot_path(node)
     if hot is not None:

@@ -73,9 +73,7 @@ def test_the_host_runs_every_job_from_one_timer(ctx: Any) -> None:
     stop()."""
     node = Chores(context=ctx)
     ex = HostExecutor(context=ctx)
-    keeper = Housekeeper(ex)
-    keeper.adopt(node.jobs)
-    keeper.start()
+    keeper = Housekeeper(ex).keep(node.jobs)
     ex.add_node(node)
     try:
         assert len(list(node.timers)) == 1
