@@ -1,9 +1,9 @@
 """One stamped stream held as arrays: what the trip and supervisor feeds queue per topic.
 
-The judge drains every queue once per 50 ms and walks thousands of samples a second; a deque of
-per-sample tuples cost it ~1 ms of CPU per 50 ms in Python loops, long enough to hold the GIL
-past a real-time sample. :class:`StampedRows` keeps a stream as blocks of arrays and answers
-the feeds' questions (rows up to a stamp, rows at given stamps) with array operations.
+The judge drains every queue once per 50 ms; walking a deque of per-sample tuples in Python
+cost it 0.95 ms of CPU per 50 ms of table1 (0.43 ms with this module, offline; docs/
+performance.md). :class:`StampedRows` keeps a stream as blocks of arrays and answers the feeds'
+questions (rows up to a stamp, rows at given stamps) with array operations.
 """
 
 from __future__ import annotations
@@ -63,19 +63,6 @@ class StampedRows:
             v = np.concatenate(self._rows) if self._rows else np.empty((0, self.width))
             self._stamps, self._rows = [s], [v]
         return self._stamps[0], self._rows[0]
-
-    def peek(self, upto: int) -> tuple[Stamps, Array]:
-        """The queued rows stamped at or before ``upto`` (ns), left queued."""
-        s, v = self._merged()
-        n = int(np.searchsorted(s, upto, side="right"))
-        return s[:n], v[:n]
-
-    def drop(self, upto: int, inclusive: bool = True) -> None:
-        """Forget the rows stamped at or before ``upto`` (``inclusive=False``: before it)."""
-        s, v = self._merged()
-        n = int(np.searchsorted(s, upto, side="right" if inclusive else "left"))
-        if n:
-            self._stamps, self._rows = [s[n:]], [v[n:]]
 
     def take(self, upto: int, inclusive: bool = True) -> tuple[Stamps, Array]:
         """Remove and return the rows stamped at or before ``upto`` (``inclusive=False``:
