@@ -130,7 +130,8 @@ CPU_WHY = ("NOT met: per input message ~40-50 us go to Fast DDS's receive thread
 #: "Where the composed late samples come from").
 COMPOSED_LATE_WHY = ("; NOT met where the driver thread needs ~70-75 % of a core at 2 kHz: "
                      "the tail of its own iteration (p99 ~0.5 ms) reaches the period, 58 % of "
-                     "late gaps busy in the driver, 35 % waiting (docs/performance.md)")
+                     "late gaps busy in the driver, 35 % waiting; compare the machine's floor "
+                     "(next row): an ideal thread of the same mean CPU (docs/performance.md)")
 #: What the deadline-miss rows measure, beside issue 21's late + stale.
 MISS_WHY = ("the jitter of the plant's publication period; a late period is caught up within "
             "20 samples, so it is not a late sample (issue 21 counts late + stale: "
@@ -244,17 +245,46 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
     rt = _realtime_rows(r, s, rt_s, ", composed, recorder in the process")
     rt[1]["target_max"], rt[2]["target_max"] = 1e-3, 0.5
     samples = int(round(rt_s * r["rate_hz"]))
+    late = r["late"] / samples + r["stale"] / (samples * r["controllers"])
+    floor = _floor_row(smoke, r["cpu"].get("driver", r["cpu"]["composed"]) / r["rate_hz"] * 1e6,
+                       rt_s)
     rt.insert(1, {"name": "graph: real time, composed, recorder in the process, late + stale "
                           "per sample (issue 21)",
-                  "value": r["late"] / samples + r["stale"] / (samples * r["controllers"]),
-                  "unit": "", "target_max": 1e-3,
+                  "value": late, "unit": "", "target_max": 1e-3,
+                  "baseline_name": "the machine's floor", "baseline": floor["value"],
                   "note": f"late {r['late']} of {samples} samples, stale forces "
                           f"{r['stale']} of {samples * r['controllers']}; "
                           f"{_recorded(r, samples)}; --rt-priority {0 if smoke else 50}"
                           + (COMPOSED_LATE_WHY if r["late"] > 1e-3 * samples else "")})
+    rt.insert(2, floor)
     rows += rt
     rows.append(_demo_row(smoke, tmp))
     return rows
+
+
+def _floor_row(smoke: bool, work_us: float, rt_s: float) -> Row:
+    """The machine's floor beside the composed real-time run (``timer_floor.py``): late
+    samples of an ideal SCHED_FIFO thread that needs the driver thread's mean CPU per sample,
+    constant, and of one that needs none."""
+    import timer_floor
+
+    from dcsms_ros.ros.cpulatency import latency_from_env
+
+    secs = 1.0 if smoke else min(rt_s, 20.0)
+    prio = 0 if smoke else 50
+    held = latency_from_env()[0]  # as the graph's run held it
+    busy, idle = (timer_floor.measure(secs, w, prio, held) for w in (work_us, 0.0))
+    wake = "/".join(f"{q:.0f}" for q in busy["wake_us"])
+    return {"name": "graph: the machine's floor, an ideal 2 kHz SCHED_FIFO thread of constant "
+                    "CPU per sample, late per sample",
+            "value": busy["late_ratio"], "unit": "", "baseline_name": "needing no CPU",
+            "baseline": idle["late_ratio"],
+            "note": f"{work_us:.0f} us per sample (the composed run's driver thread): late "
+                    f"{busy['late']} of {busy['samples']}, wake-up after the deadline "
+                    f"p50/p99/p99.9 {wake} us; no CPU: late {idle['late']}; CPU wake-up "
+                    f"latency {'not held' if held is None else f'held at {held} us'}; what an "
+                    f"ideal 2 kHz thread loses on this machine (docs/performance.md, the "
+                    f"machine's floor)"}
 
 
 def _up_row(smoke: bool, tmp: Path, domain: int) -> Row:

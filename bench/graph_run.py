@@ -23,12 +23,26 @@ HERE = Path(__file__).resolve().parent
 CONFIG = HERE.parent / "config" / "table1.yaml"
 
 
-def _cpu_ticks(pid: int) -> int | None:
+def _cpu_ticks(pid: int, tid: int | None = None) -> int | None:
+    path = f"/proc/{pid}/stat" if tid is None else f"/proc/{pid}/task/{tid}/stat"
     try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        fields = Path(path).read_text().rsplit(")", 1)[1].split()
     except OSError:
         return None
     return int(fields[11]) + int(fields[12])  # utime + stime (fields 14, 15)
+
+
+def _fifo_thread(pid: int) -> int | None:
+    """The kernel id of the process's SCHED_FIFO thread (composed: the driver), if any."""
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return None
+    for tid in tids:
+        with contextlib.suppress(OSError):
+            if os.sched_getscheduler(int(tid)) == os.SCHED_FIFO:
+                return int(tid)
+    return None
 
 
 @contextlib.contextmanager
@@ -89,6 +103,8 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
         deadline = time.monotonic() + timeout_s
         cpu0: dict[str, int | None] = {}
         t_cpu0 = 0.0
+        driver: int | None = None  # composed under SCHED_FIFO: its driver thread's CPU
+        drv: list[tuple[float, int]] = []  # (time, ticks): the first and the latest
         while plant.proc.poll() is None and time.monotonic() < deadline:
             if not cpu0 and "graph connected" in plant.log.read_text(errors="replace"):
                 t_cpu0 = time.monotonic()
@@ -96,6 +112,13 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
                         if k.proc is not None}
                 if on_running is not None:
                     on_running(kids)
+                if composed and rt_priority:
+                    driver = _fifo_thread(plant.proc.pid)
+            if driver is not None:
+                ticks = _cpu_ticks(plant.proc.pid, driver)
+                if ticks is not None:
+                    now = (time.monotonic(), ticks)
+                    drv = [drv[0] if drv else now, now]
             time.sleep(0.02)
         t_cpu1 = time.monotonic()
         cpu1 = {k.name: _cpu_ticks(k.proc.pid) for k in kids + rec if k.proc is not None}
@@ -118,6 +141,8 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     # the plant's process CPU over its run (composed: every node, the in-process recorder)
     cpu["composed" if composed else "plant_simulator"] = (
         (c1 - c0) / max(t[-1] - t[0], 1e-9) if c1 > c0 else float("nan"))
+    if drv and drv[1][0] > drv[0][0]:
+        cpu["driver"] = (drv[1][1] - drv[0][1]) / hz / (drv[1][0] - drv[0][0])
     lat = np.concatenate([z[k] for k in z.files if k.startswith("lat_ns_")]) * 1e-9
     out = {"t": t, "rate_hz": float(z["rate_hz"]), "cpu": cpu, "latency_s": lat,
            "overruns": int(z["overruns"]), "recorded": None,

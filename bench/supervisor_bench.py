@@ -69,8 +69,7 @@ def _node_cost(cfg: Any, res: Any, supervised: bool) -> tuple[float, int]:
         k1 = k0 + every
         for i in range(n):
             b = twists[i + 1].read(vel[i + 1][k0:k1])
-            for s, v in zip(b.stamp_ns.tolist(), b.fields["twist"][:, [2]], strict=True):
-                feed.add(i, s, v)
+            feed.add_block(i, b.stamp_ns, b.fields["twist"][:, [2]])  # as mode_switch feeds it
         if supervised:
             b = twists[0].read(vel[0][k0:k1])
             sup.add_grounds(b.stamp_ns, b.fields["twist"][:, [2]])

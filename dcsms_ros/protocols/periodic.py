@@ -81,9 +81,5 @@ class PeriodicSchedule:
             self._next[j] = nxt
         return out
 
-    def next_due(self, j: int) -> float:
-        """When job ``j`` is due next, s."""
-        return self._next[j]
-
 
 __all__ = ["PeriodicSchedule"]

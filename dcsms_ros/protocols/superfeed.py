@@ -47,14 +47,6 @@ class SupervisedFeed:
         self._pending = np.zeros((0, n, self.dof))
         self._pending_ground = np.zeros((0, self.dof))
 
-    def add_ground(self, stamp_ns: int, v: ArrayLike) -> None:
-        """Ground twist ``v`` (dof,) m/s of the sample stamped ``stamp_ns``."""
-        self._ground.extend([stamp_ns], v)
-
-    def add_force(self, stamp_ns: int, f: ArrayLike) -> None:
-        """Applied actuator forces ``f`` (n_actuators,) N of the sample stamped ``stamp_ns``."""
-        self._force.extend([stamp_ns], f)
-
     def add_grounds(self, stamps: ArrayLike, v: ArrayLike) -> None:
         """Ground twists of several samples: stamps (K,) ns, ``v`` (K, dof) m/s."""
         self._ground.extend(stamps, v)

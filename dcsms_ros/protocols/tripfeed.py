@@ -57,10 +57,6 @@ class TripFeed:
         """Sample indices of stamps (K,) ns, as :meth:`index` rounds them."""
         return np.rint(stamps * self.rate / NS).astype(np.int64)
 
-    def add(self, stage: int, stamp_ns: int, v: ArrayLike) -> None:
-        """Velocity ``v`` (dof,) m/s of stage ``stage`` (0-based) stamped ``stamp_ns``."""
-        self.add_block(stage, np.array([stamp_ns], dtype=np.int64), v)
-
     def add_block(self, stage: int, stamps: ArrayLike, v: ArrayLike) -> None:
         """Velocities ``v`` (K, dof) m/s of stage ``stage`` stamped ``stamps`` (K,) ns; a
         repeat (retransmission) or an older or already judged stamp is dropped."""

@@ -14,12 +14,12 @@ publication order until nothing is left.
 Composed in real time under SCHED_FIFO, the driver and the executor's thread (the process's
 main thread) share one core (:meth:`HotLoop.prioritize`, ``share_core_with``; not in lockstep,
 where the driver never waits and the executor would starve): the executor then runs only
-while the driver waits for its next deadline, and a driver that wakes preempts it at once.
-On separate cores both ran Python at the same time and the driver, needing the GIL, got every
-other switch interval of it during each executor burst (the trip judge's 50 ms timer, reports,
-wait-set rebuilds): 6-7 % of the samples were late on a 2-core machine, 0.4-0.5 % with the
-shared core (docs/performance.md, "GIL hand-offs"). The other cores are left to the DDS
-threads and the other processes.
+while the driver waits for its next deadline, and a driver that wakes preempts it at once
+and takes the GIL within :data:`SHARED_CORE_GIL_SWITCH_S`. On separate cores both ran Python
+at the same time and the driver, needing the GIL, got every other switch interval of it during
+each executor burst (the trip judge's 50 ms timer, reports, wait-set rebuilds): 6-7 % of the
+samples were late on a 2-core machine, 0.4-0.5 % with the shared core (docs/performance.md,
+"GIL hand-offs"). The other cores are left to the DDS threads and the other processes.
 
 ``DCSMS_HOT_PATH=0`` in the environment turns the hot path off (:func:`enabled`).
 """
@@ -42,6 +42,7 @@ from rclpy.node import Node
 from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.localbus import LocalBus
+from dcsms_ros.ros.cpulatency import CpuLatencyRequest, hold_from_env
 
 #: Wake-up of the hot thread when nothing arrives (s): bounds the reaction to a stop request.
 IDLE_S = 0.1
@@ -50,6 +51,17 @@ IDLE_S = 0.1
 #: samples at 2 kHz): composed, recorded, 10 s of real time at SCHED_FIFO 50 were 52-61 % late
 #: with it and 0 % with 0.2 ms (2 runs each, docs/performance.md).
 GIL_SWITCH_S = 2e-4
+#: The same, once the composed driver and the executor's thread share one core
+#: (:meth:`HotLoop.prioritize`). There the executor can hold the GIL only while the driver
+#: sleeps, and the woken driver waits one interval before Python asks the holder to let go:
+#: 200 us at every sample during an executor burst (the trip judge, every 50 ms). At 50 us, 21
+#: alternating pairs of composed 20 s runs: late samples fewer in 15 (5,317 -> 3,663 in all);
+#: samples published > 250 us behind their deadline within the judge's 11 ms window fewer in
+#: 17 of 18 (2.0-14x). Not on separate cores (one process per node), where both threads run at
+#: once: 50 us was worse in 2 of 3 pairs (stale forces 752-780 -> 2,931-3,848). 20 us was no
+#: better than 200 us (composed, 4 runs). docs/performance.md, "The GIL switch interval on a
+#: shared core".
+SHARED_CORE_GIL_SWITCH_S = 5e-5
 
 
 def settle_heap() -> None:
@@ -109,6 +121,9 @@ class HotLoop:
         self.share_core_with: int | None = None
         #: The core the thread was pinned to (None: not pinned).
         self.core: int | None = None
+        #: The CPU wake-up latency held while the loop runs under SCHED_FIFO (:mod:`.cpulatency`).
+        self.cpu_latency: CpuLatencyRequest | None = None
+        self._prioritized = threading.Event()
 
     @property
     def native_id(self) -> int | None:
@@ -132,6 +147,8 @@ class HotLoop:
         self._thread = threading.Thread(target=self._run, args=(rt_priority,), name=self.name,
                                         daemon=True)
         self._thread.start()
+        if rt_priority:  # its warnings are read once this returns
+            self._prioritized.wait(1.0)
 
     def wake(self) -> None:
         """Run the ticks now."""
@@ -153,6 +170,9 @@ class HotLoop:
             with contextlib.suppress(Exception):
                 self._guard.destroy()
             self._guard = None
+        if self.cpu_latency is not None:
+            self.cpu_latency.close()
+            self.cpu_latency = None
 
     def _on_shutdown(self) -> None:
         self._stop = True
@@ -162,8 +182,9 @@ class HotLoop:
                 self._guard.trigger()
 
     def prioritize(self, rt_priority: int) -> str | None:
-        """Put the running thread (only it) under SCHED_FIFO ``rt_priority`` (1-99); returns a
-        warning when refused (no CAP_SYS_NICE), else None."""
+        """Put the running thread (only it) under SCHED_FIFO ``rt_priority`` (1-99) and hold the
+        CPU wake-up latency :mod:`.cpulatency` asks for while the loop runs; returns a warning
+        when either is refused (no CAP_SYS_NICE, not root), else None."""
         thread = self._thread
         if not rt_priority or thread is None or thread.native_id is None:
             return None
@@ -175,6 +196,10 @@ class HotLoop:
             return self.rt_warning
         if self.share_core_with is not None:
             self._share_core(thread.native_id, self.share_core_with)
+        if self.cpu_latency is None:
+            self.cpu_latency, warning = hold_from_env()
+            if warning:
+                self.rt_warning = f"{self.rt_warning}; {warning}" if self.rt_warning else warning
         return self.rt_warning
 
     def _share_core(self, tid: int, other: int) -> None:
@@ -190,10 +215,12 @@ class HotLoop:
             self.rt_warning = f"could not put the executor on the driver's core ({exc})"
             return
         self.core = cores[-1]
+        sys.setswitchinterval(min(sys.getswitchinterval(), SHARED_CORE_GIL_SWITCH_S))
 
     def _run(self, rt_priority: int) -> None:
         if rt_priority:
             self.prioritize(rt_priority)
+        self._prioritized.set()
         try:
             self._loop()
         except BaseException as exc:  # noqa: BLE001 - re-raised by the process's spin loop
@@ -276,5 +303,5 @@ class DrivenContext(Context):
         self.bus: LocalBus | None = LocalBus(wake=self.driver.wake) if enabled() else None
 
 
-__all__ = ["GIL_SWITCH_S", "IDLE_S", "DrivenContext", "HotLoop", "Served", "enabled",
-           "settle_heap"]
+__all__ = ["GIL_SWITCH_S", "IDLE_S", "SHARED_CORE_GIL_SWITCH_S", "DrivenContext", "HotLoop",
+           "Served", "enabled", "settle_heap"]

@@ -18,7 +18,7 @@ from std_msgs.msg import Header
 
 from dcsms_ros.cli.deploy import children
 from dcsms_ros.graph import define_graph
-from dcsms_ros.ros.hotloop import IDLE_S
+from dcsms_ros.ros.hotloop import IDLE_S, SHARED_CORE_GIL_SWITCH_S
 from dcsms_ros.ros.hotpath import GIL_SWITCH_S, DrivenContext, HotPath
 from dcsms_ros.ros.runtime import RT_PRIORITY_ENV, rt_priority_from_env
 
@@ -156,13 +156,17 @@ def test_a_driven_context_serves_its_nodes_hot_paths_in_one_thread(ctx, domain: 
 def test_a_real_time_driver_shares_its_core_with_the_executor_thread(domain: int) -> None:
     """Composed under SCHED_FIFO, the driver and the thread that created the DrivenContext (the
     host's executor thread) are pinned to one core, the last the process may use, so the
-    executor runs only while the driver waits; without a thread to share with (lockstep) the
-    driver keeps every core. SCHED_FIFO refused: said in ``rt_warning``, nothing pinned."""
+    executor runs only while the driver waits, and the GIL switch interval is shortened to
+    SHARED_CORE_GIL_SWITCH_S; without a thread to share with (lockstep) the driver keeps every
+    core and the hot loop's interval. SCHED_FIFO refused: said in ``rt_warning``, nothing
+    pinned."""
     if len(os.sched_getaffinity(0)) < 2:
         pytest.skip("one core: nothing to share")
     me = threading.get_native_id()
     mine = os.sched_getaffinity(me)
+    interval = sys.getswitchinterval()
     for share in (True, False):
+        sys.setswitchinterval(0.005)
         driven = DrivenContext("share-driver")
         if not share:
             driven.driver.share_core_with = None
@@ -186,9 +190,12 @@ def test_a_real_time_driver_shares_its_core_with_the_executor_thread(domain: int
                 last = max(os.sched_getaffinity(0))
                 assert loop.core == last
                 assert os.sched_getaffinity(tid) == {last} == os.sched_getaffinity(me)
+                assert sys.getswitchinterval() == pytest.approx(SHARED_CORE_GIL_SWITCH_S)
             else:
                 assert loop.core is None and os.sched_getaffinity(tid) == mine
+                assert sys.getswitchinterval() == pytest.approx(GIL_SWITCH_S)
         finally:
+            sys.setswitchinterval(interval)
             os.sched_setaffinity(me, mine)  # the test runner's thread gets its cores back
             driven.driver.stop()
             hot.stop()

@@ -44,9 +44,9 @@ def _feed(cfg: SystemConfig) -> SupervisedFeed:
 def _add(feed: SupervisedFeed, res: SimResult, k: int, rate: float) -> None:
     ns = sample_ns(k, rate)
     for i in range(res.velocity.shape[1] - 1):
-        feed.feed.add(i, ns, res.velocity[k, i + 1])
-    feed.add_ground(ns, res.velocity[k, 0])
-    feed.add_force(ns, res.applied[k])
+        feed.feed.add_block(i, [ns], res.velocity[k, i + 1])
+    feed.add_grounds([ns], res.velocity[k, 0])
+    feed.add_forces([ns], res.applied[k])
 
 
 def test_lockstep_feeding_equals_the_batch_engine(burst: tuple[SystemConfig, SimResult]) -> None:
@@ -60,12 +60,12 @@ def test_lockstep_feeding_equals_the_batch_engine(burst: tuple[SystemConfig, Sim
         # plant's forces of k are applied (published) only after the verdict
         ns = sample_ns(k, rate)
         for i in range(res.velocity.shape[1] - 1):
-            feed.feed.add(i, ns, res.velocity[k, i + 1])
-        feed.add_ground(ns, res.velocity[k, 0])
+            feed.feed.add_block(i, [ns], res.velocity[k, i + 1])
+        feed.add_grounds([ns], res.velocity[k, 0])
         if (k + 1) % every == 0:
             assert feed.complete(ns)
             got += feed.step(ns)
-        feed.add_force(ns, res.applied[k])
+        feed.add_forces([ns], res.applied[k])
     assert got == res.supervision
 
 
@@ -76,12 +76,12 @@ def test_a_checkpoint_waits_for_the_previous_samples_forces(cfg: SystemConfig) -
     for j in range(k + 1):
         ns = sample_ns(j, rate)
         for i in range(cfg.plant.num_stages):
-            feed.feed.add(i, ns, np.zeros(cfg.plant.dof))
-        feed.add_ground(ns, np.zeros(cfg.plant.dof))
+            feed.feed.add_block(i, [ns], np.zeros(cfg.plant.dof))
+        feed.add_grounds([ns], np.zeros(cfg.plant.dof))
         if j < k - 1:
-            feed.add_force(ns, np.zeros(2))
+            feed.add_forces([ns], np.zeros(2))
     assert not feed.complete(sample_ns(k, rate))
-    feed.add_force(sample_ns(k - 1, rate), np.zeros(2))
+    feed.add_forces([sample_ns(k - 1, rate)], np.zeros(2))
     assert feed.complete(sample_ns(k, rate))
 
 

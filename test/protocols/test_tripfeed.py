@@ -30,10 +30,10 @@ def test_stream_feed_trips_where_the_whole_series_does() -> None:
     feed = TripFeed(TripChecker(ControlConfig(), RATE, 2, 1), RATE)
     got = None
     for k in range(v.shape[0]):
-        feed.add(1, k * NS, v[k, 1])  # stage 2 first: rows wait for stage 1
+        feed.add_block(1, [k * NS], v[k, 1])  # stage 2 first: rows wait for stage 1
         assert feed.complete_ns() == (k - 1) * NS if k else feed.complete_ns() == -1
-        feed.add(0, k * NS, v[k, 0])
-        feed.add(0, k * NS, v[k, 0] + 1.0)  # a repeat (retransmission) is ignored
+        feed.add_block(0, [k * NS], v[k, 0])
+        feed.add_block(0, [k * NS], v[k, 0] + 1.0)  # a repeat (retransmission) is ignored
         if (k + 1) % 100 == 0:
             got = feed.judge(k * NS)
             if got is not None:
@@ -47,7 +47,7 @@ def test_real_time_judges_a_stage_whose_stream_is_silent_as_zero() -> None:
     feed = TripFeed(TripChecker(ControlConfig(), RATE, 2, 1), RATE)
     got = None
     for k in range(v.shape[0]):
-        feed.add(0, k * NS, v[k, 0])
+        feed.add_block(0, [k * NS], v[k, 0])
         if k % 97 == 0 and got is None:
             got = feed.judge()
     assert got is not None and got.stage == 1
@@ -58,12 +58,12 @@ def test_reset_resumes_at_a_checkpoint_block() -> None:
     checkpoints keep the plant's sample indices."""
     feed = TripFeed(TripChecker(ControlConfig(), RATE, 1, 1), RATE)
     for k in range(150):
-        feed.add(0, k * NS, np.zeros(1))
+        feed.add_block(0, [k * NS], np.zeros(1))
     feed.judge(lag_ns=0)
     assert feed.checker.k == 150
     feed.reset()
     for k in range(150, 260):
-        feed.add(0, k * NS, np.zeros(1))
+        feed.add_block(0, [k * NS], np.zeros(1))
     feed.judge(lag_ns=0)
     assert feed.checker.k == 60 and feed.judged_ns == 259 * NS  # fed from sample 200 on
 
@@ -80,9 +80,9 @@ def test_blocks_with_repeats_and_a_lost_sample_give_the_rows_of_every_sample(
     feeds = [TripFeed(TripChecker(ControlConfig(), RATE, 2, 1), RATE) for _ in range(2)]
     one, blk = feeds
     for k in range(v.shape[0]):
-        one.add(0, int(stamps[k]), v[k, 0])
+        one.add_block(0, [int(stamps[k])], v[k, 0])
         if k != lost:
-            one.add(1, int(stamps[k]), v[k, 1])
+            one.add_block(1, [int(stamps[k])], v[k, 1])
     for j in range(0, v.shape[0], 64):
         sl = slice(max(j - 3, 0), j + 64)  # each block repeats the last 3 of the one before
         blk.add_block(0, stamps[sl], v[sl, 0])
