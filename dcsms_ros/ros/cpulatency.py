@@ -46,17 +46,6 @@ def latency_from_env() -> tuple[int | None, str | None]:
     return us, None
 
 
-def read_latency_us(path: Path = PM_QOS_PATH) -> int | None:
-    """The wake-up latency (us) the kernel applies now, the smallest of all requests (None
-    when the file cannot be read)."""
-    try:
-        with open(path, "rb") as f:
-            data = f.read(4)
-    except OSError:
-        return None
-    return struct.unpack("i", data)[0] if len(data) == 4 else None
-
-
 class CpuLatencyRequest:
     """One held request for a CPU wake-up latency of :attr:`us` microseconds; :meth:`close`
     (idempotent) withdraws it.

@@ -58,7 +58,7 @@ GIL_SWITCH_S = 2e-4
 #: alternating pairs of composed 20 s runs: late samples fewer in 15 (5,317 -> 3,663 in all);
 #: samples published > 250 us behind their deadline within the judge's 11 ms window fewer in
 #: 17 of 18 (2.0-14x). Not on separate cores (one process per node), where both threads run at
-#: once: 50 us was worse in 2 of 3 pairs (stale forces 752-780 -> 2,931-3,848). 20 us was no
+#: once and nothing showed a gain: 50 us had fewer late samples in 3 of 6 pairs. 20 us was no
 #: better than 200 us (composed, 4 runs). docs/performance.md, "The GIL switch interval on a
 #: shared core".
 SHARED_CORE_GIL_SWITCH_S = 5e-5

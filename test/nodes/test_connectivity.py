@@ -6,18 +6,21 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+import pytest
 from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import ClockType
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.topic_endpoint_info import TopicEndpointInfo
 from sensor_msgs.msg import JointState
 
 from dcsms_ros.core import topics
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import STEADY, steady_timer
 from dcsms_ros.ros.connectivity import (
+    UNKNOWN_NODE,
     End,
     control_path,
     has_reader,
@@ -98,6 +101,31 @@ def test_a_writer_is_matched_once_every_reader_is_and_an_observer_is_outside(ctx
         executor.shutdown()
         for n in [plant, *others]:
             n.destroy_node()
+
+
+class _GraphView:
+    """The one graph query ``outside_graph`` makes, answered with rmw's own endpoint infos:
+    a reader whose node is not announced yet cannot be made to order over DDS."""
+
+    def __init__(self, infos: list[TopicEndpointInfo]) -> None:
+        self.infos = infos
+
+    def get_subscriptions_info_by_topic(self, topic: str) -> list[TopicEndpointInfo]:
+        return self.infos
+
+
+@pytest.mark.parametrize(("names", "outside"), [
+    ([UNKNOWN_NODE], False),
+    (["mode_switch", UNKNOWN_NODE], False),
+    ([UNKNOWN_NODE, "dcsms_recorder"], True),
+    (["fb_stage1"], False),
+])
+def test_a_reader_of_an_unknown_node_is_no_observer(names: list[str], outside: bool) -> None:
+    """Until rmw knows a reader's node, the reader may be the graph's own: a plant must not
+    start for it (the soak's recorder missed the first 38-864 samples of a topic another
+    reader had satisfied)."""
+    view = _GraphView([TopicEndpointInfo(node_name=n, node_namespace="/") for n in names])
+    assert outside_graph(view, "/t/actuators/applied") is outside  # type: ignore[arg-type]
 
 
 def test_steady_timer_runs_without_clock_under_sim_time(ctx: Context) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import struct
 import subprocess
 import sys
 import time
@@ -18,9 +19,14 @@ from dcsms_ros.ros.cpulatency import (
     CpuLatencyRequest,
     hold_from_env,
     latency_from_env,
-    read_latency_us,
 )
 from dcsms_ros.ros.runtime import RT_PRIORITY_ENV
+
+
+def read_latency_us() -> int:
+    """The wake-up latency (us) the kernel applies now: the smallest of all requests."""
+    with open(PM_QOS_PATH, "rb") as f:
+        return int(struct.unpack("i", f.read(4))[0])
 
 
 def _writable() -> bool:

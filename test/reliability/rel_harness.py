@@ -174,7 +174,7 @@ class Probe:
     Spun in a background thread; every list holds ``(recv_mono_ns, stamp_ns, values)``.
     """
 
-    def __init__(self, ctx: Context, forces: tuple[str, ...] = ()) -> None:
+    def __init__(self, ctx: Context, forces: tuple[str, ...] = (), applied: bool = True) -> None:
         self.node = rclpy.create_node(f"reliability_probe_{os.getpid()}", context=ctx)
         self.lock = threading.Lock()
         self.applied: list[tuple[int, int, tuple[float, ...]]] = []
@@ -185,8 +185,9 @@ class Probe:
         self.diag_log: list[tuple[int, str, str, dict[str, str]]] = []
         self.modes: list[tuple[int, str]] = []
         nd = self.node
-        nd.create_subscription(JointState, topics.ACTUATORS_APPLIED, self._on_applied,
-                               _deep(reliable=False))
+        if applied:  # an observer of applied: the plant's start may wait for it
+            nd.create_subscription(JointState, topics.ACTUATORS_APPLIED, self._on_applied,
+                                   _deep(reliable=False))
         for c in self.forces:
             nd.create_subscription(WrenchStamped, topics.force_topic(c),
                                    lambda m, c=c: self._on_force(c, m), _deep(reliable=False))

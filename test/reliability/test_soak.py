@@ -48,7 +48,9 @@ def test_soak_realtime_with_recording(request, ctx, cfg, tmp_path):
     rec = subprocess.Popen([*recorder_command(bag, recorded), "--queue-depth", "20000"],
                            stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
-    probe = Probe(ctx)
+    # the probe must not read applied: the plant would start once it did, before the
+    # recorder's reader of it existed (its first 38-864 samples were missing from the bag)
+    probe = Probe(ctx, applied=False)
     graph = Graph(cfg, tmp_path, mode=Mode.DFBC_FFC, extra={"plant_simulator": {
         "wait_for_subscribers": recorded[:-2]}})
     pids = {**{n: graph.pid(n) for n in graph.kids}, "recorder": rec.pid}
