@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
+from rclpy.logging import LoggingSeverity
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Header, Int64
@@ -39,6 +40,7 @@ from dcsms_ros.ros.connectivity import (
     publishers_matched,
 )
 from dcsms_ros.ros.intraprocess import SamplePublisher
+from dcsms_ros.ros.logthrottle import Throttled
 from dcsms_ros.ros.msgs import sample_ns, to_stamp
 from dcsms_ros.ros.params import declare_observed
 from dcsms_ros.ros.reports import Reports, Status
@@ -69,6 +71,12 @@ class PlantIO:
         pub_qos = qos.stream_pub(node.lockstep)
         self.bodies = topics.body_names(sim.cfg.plant.num_stages)
         self.observed = declare_observed(node)
+        log = node.get_logger()
+        # hot-path log lines: decided before rclpy's 250 us caller lookup (ros/logthrottle.py)
+        self._log_frame = Throttled(log, 5.0, LoggingSeverity.ERROR)
+        self._log_nonfinite = Throttled(log, 2.0)
+        self._log_missed = Throttled(log, 2.0)
+        self._log_stale = Throttled(log, 2.0)
         self.pub_clock = node.create_publisher(ClockMsg, topics.CLOCK, qos.clock())
         # per-sample streams: composed, handed to in-process readers directly (hotpath.py)
         pub = node.hot.publisher
@@ -192,9 +200,8 @@ class PlantIO:
         if frame in self.bodies[1:]:
             self.exc_stage = self.bodies.index(frame) - 1
             return
-        self.node.get_logger().error(f"excitation frame_id {frame!r} is not a stage "
-                                     f"({', '.join(self.bodies[1:])}): ignored",
-                                     throttle_duration_sec=5.0)
+        self._log_frame(lambda: f"excitation frame_id {frame!r} is not a stage "
+                                f"({', '.join(self.bodies[1:])}): ignored")
 
     def advance(self, wrenches: dict[str, np.ndarray], lockstep: bool) -> None:
         """Step the plant with ``wrenches`` (the excitation's, if any, is added after the
@@ -211,8 +218,8 @@ class PlantIO:
             self.flush_applied()
         if self.sim.nonfinite_inputs != self._nonfinite_seen:
             self._nonfinite_seen = self.sim.nonfinite_inputs
-            self.node.get_logger().warning(f"non-finite force commands ignored (total "
-                                           f"{self._nonfinite_seen})", throttle_duration_sec=2.0)
+            self._log_nonfinite(lambda: f"non-finite force commands ignored (total "
+                                        f"{self._nonfinite_seen})")
 
     # -- events ------------------------------------------------------------------------------
     def arrival(self, wall_ns: int) -> int:
@@ -237,15 +244,15 @@ class PlantIO:
         for c in absent:
             log.error(f"{c} missed {barrier.consec[c]} samples in a row: absent, not waited "
                       f"for until it answers again")
-        log.warning(f"no answer from {', '.join(missing)} for t={self.ns / 1e9:.4f} s within "
-                    f"{barrier.timeout_s:g} s: zero force (faults {barrier.faults})",
-                    throttle_duration_sec=2.0)
+        self._log_missed(lambda: f"no answer from {', '.join(missing)} for t="
+                                 f"{self.ns / 1e9:.4f} s within {barrier.timeout_s:g} s: zero "
+                                 f"force (faults {barrier.faults})")
 
     def went_stale(self, c: str) -> None:
         """Real time: the force of ``c`` just went stale (the fault tests read when)."""
         self.stale_at[c] = (time.monotonic_ns(), self.sim.k)
-        self.node.get_logger().warning(f"force of {c} is stale (> {self.node.held.timeout_s:g}"
-                                       f" s): zero", throttle_duration_sec=2.0)
+        self._log_stale(lambda: f"force of {c} is stale (> {self.node.held.timeout_s:g} s): "
+                                f"zero")
 
     def holding(self, sample: int) -> None:
         """Lockstep: the plant stopped before ``sample`` (its hold); say so on ``plant/held``."""

@@ -28,6 +28,7 @@ from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
+from dcsms_ros.ros.logthrottle import Throttled
 from dcsms_ros.ros.params import (
     SELECTORS,
     NodeConfig,
@@ -72,6 +73,7 @@ class SensorDecouplingNode(GraphNode, Hosted):
         self.answers = answerer(self, self._publish, lockstep, self.pubs, self.observed)
         self.samples = 0
         self.bad_messages = 0
+        self._log_nonfinite = Throttled(self.get_logger(), 2.0)
         self.housekeeping(1.0, self._report)
         self.hot.start()
 
@@ -107,8 +109,8 @@ class SensorDecouplingNode(GraphNode, Hosted):
         self.samples += 1
         self.answers.reply(ns, [w.encode(ns, tw[i]) for i, w in enumerate(self.writers)])
         if self.dec.nonfinite:
-            self.get_logger().warning(f"non-finite sensor channels: {self.dec.nonfinite} "
-                                      f"body samples zeroed", throttle_duration_sec=2.0)
+            self._log_nonfinite(lambda: f"non-finite sensor channels: {self.dec.nonfinite} "
+                                        f"body samples zeroed")
 
     def _publish(self, msgs: list[bytes]) -> None:
         for pub, m in zip(self.pubs, msgs, strict=True):

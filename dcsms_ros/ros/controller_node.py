@@ -28,6 +28,7 @@ from collections.abc import Callable
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped, WrenchStamped
+from rclpy.logging import LoggingSeverity
 from std_msgs.msg import Int64
 from std_srvs.srv import SetBool
 
@@ -47,6 +48,7 @@ from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
+from dcsms_ros.ros.logthrottle import Throttled
 from dcsms_ros.ros.params import (
     NodeConfig,
     answerer,
@@ -119,6 +121,11 @@ class ControllerNode(GraphNode, Hosted):
         self.stale_at_mono_ns = 0
         self.changed_at_ns = -1
         self._seen = (0, 0)
+        log = self.get_logger()
+        # hot-path log lines: decided before rclpy's 250 us caller lookup (ros/logthrottle.py)
+        self._log_back = Throttled(log, 2.0, LoggingSeverity.INFO)
+        self._log_seen = Throttled(log, 2.0)
+        self._log_stale = Throttled(log, 2.0)
         self.boot_ns = time.time_ns()  # tells mode_switch a restarted process from the old one
         self.pub_boot = self.create_publisher(Int64, topics.LOCAL.boot(cid), qos.latched())
         self.pub_boot.publish(Int64(data=self.boot_ns))
@@ -159,7 +166,7 @@ class ControllerNode(GraphNode, Hosted):
             for _ in range(gap):
                 self.loop.fader.step()
         if self.watchdog.feed(time.monotonic()):
-            self.get_logger().info(f"{self.cid}: input is back")
+            self._log_back(lambda: f"{self.cid}: input is back")
         if not self._linked and self._reaches_actuators(ns):
             self._linked = True
             self.loop.prime(x)  # joining a running plant: no filter start-up transient
@@ -173,8 +180,8 @@ class ControllerNode(GraphNode, Hosted):
         if seen != self._seen:
             what = "non-finite input ignored" if seen[0] != self._seen[0] else \
                 "actuator saturation"
-            self.get_logger().warning(f"{self.cid}: {what} (totals: non-finite {seen[0]}, "
-                                      f"saturated {seen[1]} samples)", throttle_duration_sec=2.0)
+            self._log_seen(lambda: f"{self.cid}: {what} (totals: non-finite {seen[0]}, "
+                                   f"saturated {seen[1]} samples)")
             self._seen = seen
 
     def _reaches_actuators(self, ns: int) -> bool:
@@ -204,9 +211,8 @@ class ControllerNode(GraphNode, Hosted):
                 return
             if newly:
                 self.stale_at_mono_ns = time.monotonic_ns()  # compared with a kill time
-                self.get_logger().warning(f"{self.cid}: no input for "
-                                          f"{self.watchdog.timeout_s:g} s: zero force",
-                                          throttle_duration_sec=2.0)
+                self._log_stale(lambda: f"{self.cid}: no input for "
+                                        f"{self.watchdog.timeout_s:g} s: zero force")
             # stamped with the sample time the plant has reached by now (no /clock needed)
             late = int((time.monotonic() - (self.watchdog.last or 0.0)) * 1e9)
             self.pub.publish(self.writer.encode(max(self.answers.last_ns, 0) + late,

@@ -14,6 +14,8 @@ import numpy as np
 from numpy.typing import NDArray
 from rclpy.node import Node
 
+from dcsms_ros.ros.logthrottle import Throttled
+
 #: No table, ground or geophone of this system moves at 10 m/s: larger is a corrupt value.
 MAX_VELOCITY_MPS = 10.0
 #: Controllers clip to the actuator limit; a command 100x beyond it is corrupt, not saturated.
@@ -28,6 +30,7 @@ class InputGuard:
     def __init__(self, node: Node, what: str, limit: float) -> None:
         self.node, self.what, self.limit = node, what, float(limit)
         self.rejected = 0
+        self._log = Throttled(node.get_logger(), LOG_PERIOD_S)
 
     def bad(self, x: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Element-wise: not finite or beyond the limit."""
@@ -65,7 +68,6 @@ class InputGuard:
 
     def _reject(self, x: NDArray[np.float64]) -> None:
         self.rejected += 1
-        self.node.get_logger().warning(
-            f"{self.what}: rejected implausible input {np.array2string(x, precision=3)} "
-            f"(non-finite or |x| > {self.limit:g}); total {self.rejected}",
-            throttle_duration_sec=LOG_PERIOD_S)
+        self._log(lambda: f"{self.what}: rejected implausible input "
+                          f"{np.array2string(x, precision=3)} (non-finite or |x| > "
+                          f"{self.limit:g}); total {self.rejected}")
