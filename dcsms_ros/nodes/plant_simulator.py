@@ -14,8 +14,9 @@ graph's namespace). Two schedules (parameter ``schedule``):
   plant before a sample until the parameter changes (mode schedules).
 * ``realtime`` - the :class:`~dcsms_ros.protocols.pacer.Pacer` steps the plant on the wall
   clock at ``plant.rate_hz`` with the newest force of each controller
-  (:class:`~dcsms_ros.protocols.pacer.HeldInputs`: older than ``control.input_timeout_s`` is
-  zero).
+  (:class:`~dcsms_ros.protocols.pacer.HeldInputs`: zero once ``control.input_timeout_s`` has
+  passed since the publication of the sample the force answers, not since its arrival, so a
+  late answer never closes the loop with more delay than that; see :meth:`PlantIO.sample_time`).
 
 Startup handshake (:mod:`.plant_simulator_io`): sample 0 is published only once the graph is
 connected, or after ``handshake_timeout_s``.
@@ -235,7 +236,7 @@ class PlantSimulatorNode(GraphNode, Hosted):
             self.io.excitation_frame(read_frame(buf, WRENCH_STAMPED))
         now_ns = self.io.latency(cid, stamp, rx_ns)
         if not self.lockstep:
-            self.held.put(cid, w, now_ns * 1e-9)
+            self.held.put(cid, w, self.io.sample_time(stamp, now_ns) * 1e-9)
             return
         if cid in self.barrier.absent:
             self.get_logger().info(f"{cid} is back")

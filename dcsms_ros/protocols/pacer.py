@@ -76,8 +76,10 @@ class HeldInputs:
         self.stale_samples = dict.fromkeys(self.names, 0)
 
     def put(self, name: str, value: Any, t: float) -> None:
-        """Input ``name`` got ``value`` at ``t`` (s)."""
-        self._held[name] = (value, t)
+        """Input ``name`` got ``value``, valid from ``t`` (s); an older one than the value held
+        (a reordered message) is ignored."""
+        if t >= self._held.get(name, (None, -math.inf))[1]:
+            self._held[name] = (value, t)
 
     def arrived(self, name: str) -> float:
         """When ``name`` last arrived (s), -inf if never."""

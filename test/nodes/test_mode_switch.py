@@ -40,8 +40,15 @@ class Graph:
         for n in (self.ms, *self.fb, self.client):
             serialize(n)  # as the host does: callbacks one at a time with the hot loop
             self.ex.add_node(n)
-        self.thread = __import__("threading").Thread(target=self.ex.spin, daemon=True)
+        self._stop = False
+        self.thread = __import__("threading").Thread(target=self._spin, daemon=True)
         self.thread.start()
+
+    def _spin(self) -> None:
+        # not ex.spin(): shutdown() from another thread destroys the executor's guard
+        # condition while spin() may be building its wait set (an AttributeError in CI)
+        while not self._stop:
+            self.ex.spin_once(timeout_sec=0.05)
 
     def call(self, service: str) -> Trigger.Response:
         cli = self.client.create_client(Trigger, service)
@@ -59,6 +66,8 @@ class Graph:
         return cond()
 
     def close(self):
+        self._stop = True
+        self.thread.join(timeout=10.0)
         self.ex.shutdown(timeout_sec=2.0)
 
 

@@ -58,6 +58,19 @@ def test_held_inputs_go_stale_and_count_it_once() -> None:
     assert h.arrived("a") == 1.012 and h.arrived("zz") == -math.inf
 
 
+def test_a_held_value_counts_from_its_own_time_and_an_older_one_is_ignored() -> None:
+    """The plant puts a force valid from its sample's publication: an answer to an old sample
+    is stale at once, and it never replaces a newer answer that arrived first."""
+    h = HeldInputs(["a"], timeout_s=0.01, zero=0.0)
+    h.put("a", 1.0, 2.000)
+    h.put("a", 9.0, 1.985)  # a reordered, older answer: ignored
+    assert h.take(2.005) == ({"a": 1.0}, [])
+    h.put("a", 2.0, 1.990)  # older than the held one: ignored, the held one stales
+    assert h.take(2.011) == ({"a": 0.0}, ["a"])
+    h.put("a", 3.0, 2.011)
+    assert h.take(2.012) == ({"a": 3.0}, [])
+
+
 def test_watchdog() -> None:
     """Fresh, then stale once, stays stale (repeated zero force), back on the next input."""
     w = Watchdog(0.01)

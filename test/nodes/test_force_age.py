@@ -1,0 +1,83 @@
+"""A real-time plant ages a force from the sample it answers, not from its arrival: a late answer
+is never applied, so the loop's delay stays within ``control.input_timeout_s``."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import WrenchStamped
+from node_helpers import executor_for, overrides, spin_until
+from rosmsgs import stamp_ns
+from sensor_msgs.msg import JointState
+
+from dcsms_ros.core import topics
+from dcsms_ros.nodes.plant_simulator import PlantSimulatorNode
+from dcsms_ros.ros import qos
+
+FORCE_N = 5.0
+
+
+def test_a_force_answering_an_old_sample_is_zero_a_fresh_one_is_applied(ctx, cfg):
+    """fb_stage1 answers with 5 N: stamped with the newest sample it is applied; stamped 40
+    samples (20 ms, twice the timeout) older than that, sent at the same moments, it counts as
+    stale and the plant applies zero (before, aged from its arrival, it was applied: this test
+    failed on that code)."""
+    timeout_s = cfg.control.input_timeout_s
+    plant = PlantSimulatorNode(context=ctx, parameter_overrides=overrides(
+        cfg, schedule="realtime", handshake_timeout_s=0.3, duration_s=0.0))
+    probe = rclpy.create_node("force_age_probe", context=ctx)
+    raw: list[int] = []
+    applied: list[tuple[int, float]] = []
+    probe.create_subscription(JointState, topics.SENSORS_RAW,
+                              lambda m: raw.append(stamp_ns(m.header.stamp)),
+                              qos.stream_sub(False))
+    probe.create_subscription(JointState, topics.ACTUATORS_APPLIED, lambda m: applied.append(
+        (stamp_ns(m.header.stamp), float(m.effort[0]))), qos.stream_pub(False))
+    pub = probe.create_publisher(WrenchStamped, topics.force_topic("fb_stage1"),
+                                 qos.stream_pub(False))
+    ex = executor_for(ctx, plant, probe)
+    lag = int(round(timeout_s * cfg.plant.rate_hz)) * 2  # twice the timeout, in samples
+    period_ns = int(round(1e9 / cfg.plant.rate_hz))
+
+    def answer(age_samples: int, seconds: float) -> list[float]:
+        """Answer the newest raw sample (minus ``age_samples``) for ``seconds``; the applied
+        stage-1 forces (stamp ns, N) of the samples after the newest one seen at the start."""
+        since = raw[-1] if raw else 0
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.0005)
+            if raw:
+                m = WrenchStamped()
+                ns = raw[-1] - age_samples * period_ns
+                m.header.stamp.sec, m.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+                m.header.frame_id = "stage1"
+                m.wrench.force.z = FORCE_N
+                pub.publish(m)
+        spin_until(ex, lambda: bool(applied) and applied[-1][0] >= raw[-1], 1.0)
+        return [(ns, f) for ns, f in applied if ns > since]
+
+    try:
+        assert spin_until(ex, lambda: len(raw) > 200, 30.0), "the plant did not step"
+        fresh = answer(0, 1.0)
+        late = answer(lag, 1.0)
+        fresh_again = answer(0, 1.0)
+    finally:
+        plant.hot.stop()  # its loop publishes: stopped before the node goes
+        ex.shutdown()
+        plant.destroy_node()
+        probe.destroy_node()
+    print(f"applied stage-1 force: fresh {np.median([f for _, f in fresh]):.2f} N "
+          f"({len(fresh)} samples), {lag} samples late "
+          f"{np.median([f for _, f in late]):.2f} N ({len(late)})")
+    assert len(fresh) > 100 and len(late) > 100 and len(fresh_again) > 100
+    # most samples take the answer (a few go stale on a busy machine)
+    assert np.median([f for _, f in fresh]) == FORCE_N
+    assert np.median([f for _, f in fresh_again]) == FORCE_N
+    # a late answer is never applied: the last fresh one answered a sample no newer than the
+    # late phase's first and went stale input_timeout_s after that sample's publication (0.2 s
+    # leave room for that sample having gone out late on a loaded machine)
+    start = late[0][0]
+    settled = [f for ns, f in late if ns > start + max(0.2, 10 * timeout_s) * 1e9]
+    assert settled and max(abs(f) for f in settled) == 0.0, settled[:20]
