@@ -53,7 +53,8 @@ class Pacer:
 
 
 class HeldInputs:
-    """The newest value of each named input and when it arrived; stale after ``timeout_s``.
+    """The newest value of each named input and the time it counts from (its arrival, or the
+    plant's choice: its sample's publication); stale ``timeout_s`` after that.
 
     Parameters
     ----------
@@ -82,7 +83,8 @@ class HeldInputs:
             self._held[name] = (value, t)
 
     def arrived(self, name: str) -> float:
-        """When ``name`` last arrived (s), -inf if never."""
+        """The time the held value of ``name`` counts from (s; the plant's: the publication of
+        the sample its force answers), -inf if never."""
         return self._held.get(name, (None, -math.inf))[1]
 
     def take(self, now: float) -> tuple[dict[str, Any], list[str]]:
