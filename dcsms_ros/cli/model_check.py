@@ -1,7 +1,8 @@
 """``dcsms model check`` and ``dcsms model table4``: is a configuration safe, and what will it do.
 
 ``check`` judges every mode on the loop as it runs: stable, loop-at-a-time and disk margins at
-least ``--min-gm``/``--min-pm``, and no predicted saturation (peak = 4 x RMS of each actuator's
+least ``--min-gm``/``--min-pm``, every delay margin above ``control.input_timeout_s`` (the
+latest a real-time force is applied), and no predicted saturation (peak = 4 x RMS of each actuator's
 force under the configured disturbances). Exit 0 when every mode passes, 1 otherwise (each
 failing mode named with why), 2 for a bad configuration. ``table4`` predicts the paper's Table 4
 with the definition ``dcsms analyze`` uses.
@@ -54,17 +55,19 @@ def format_line(c: ModeCheck) -> str:
     # margins of an unstable loop measure nothing useful: shown as "-"
     gm, pm = _worst_loop(c) if c.stability.stable else (math.nan, math.nan)
     dg, dp = _worst_disk(c) if c.stability.stable else (math.nan, math.nan)
+    dm = c.delay_s[1] * 1e3 if c.stability.stable else math.nan
     name, peak, lim = _force(c)
     force = ("-" if not math.isfinite(peak) else
              f"{peak:.3g}/{lim:g} N {name}" if peak else "0 N")
     verdict = "OK" if c.ok else "FAIL"
     return (f"{c.mode.label:<9} {poles:<30} {cell(gm, '.1f'):>6} {cell(pm, '.0f'):>5}  "
-            f"{cell(dg, '.1f'):>6} {cell(dp, '.0f'):>5}  {force:<28} {verdict}")
+            f"{cell(dg, '.1f'):>6} {cell(dp, '.0f'):>5}  {cell(dm, '.1f'):>6}  {force:<28} "
+            f"{verdict}")
 
 
 HEADER = (f"{'mode':<9} {'closed-loop poles (worst)':<30} {'loop':>6} {'':>5}  {'disk':>6} "
-          f"{'':>5}  {'peak force/limit, actuator':<28} verdict\n"
-          f"{'':<9} {'':<30} {'GM dB':>6} {'PM':>5}  {'GM dB':>6} {'PM':>5}")
+          f"{'':>5}  {'delay':>6}  {'peak force/limit, actuator':<28} verdict\n"
+          f"{'':<9} {'':<30} {'GM dB':>6} {'PM':>5}  {'GM dB':>6} {'PM':>5}  {'DM ms':>6}")
 
 
 def verdict_lines(checks: Sequence[ModeCheck]) -> list[str]:
@@ -84,7 +87,10 @@ def _check_dict(c: ModeCheck) -> dict[str, Any]:
         "growth_per_s": st.growth_per_s,
         "unstable_poles_hz": list(st.unstable_s_hz),
         "loops": [{"controller": m.controller, "axis": m.axis, "gm_db": m.gm_db,
-                   "pm_deg": m.pm_deg, "wg_hz": m.wg_hz, "wp_hz": m.wp_hz} for m in c.loops],
+                   "pm_deg": m.pm_deg, "wg_hz": m.wg_hz, "wp_hz": m.wp_hz,
+                   "delay_margin_s": m.delay_s} for m in c.loops],
+        "delays": [{"name": d.name, "paths": list(d.paths), "delay_margin_s": d.delay_s,
+                    "f_hz": d.f_hz} for d in c.delays],
         "disks": [{"stage": d.stage, "paths": list(d.paths), "alpha": d.alpha,
                    "gm_db": d.gm_db, "pm_deg": d.pm_deg, "f_hz": d.f_hz} for d in c.disks],
         "actuators": {n: {"rms_n": r, "peak_n": PEAK_FACTOR * r, "limit_n": lim}
@@ -103,13 +109,16 @@ def run_check(args: argparse.Namespace) -> int:
     ok = all(c.ok for c in checks)
     if args.json:
         print_json({"config": cfg.source, "model": "discrete", "min_gm_db": args.min_gm,
-                    "min_pm_deg": args.min_pm, "peak_factor": PEAK_FACTOR, "ok": ok,
+                    "min_pm_deg": args.min_pm, "peak_factor": PEAK_FACTOR,
+                    "input_timeout_s": cfg.control.input_timeout_s, "ok": ok,
                     "modes": {c.mode.label: _check_dict(c) for c in checks}})
         return 0 if ok else 1
     print(f"model check of {cfg.source} ({cfg.plant.fidelity}, {cfg.plant.num_stages} stages): "
           f"{AS_RUNS} at {cfg.plant.rate_hz:g} Hz")
     print(f"pass: stable, loop and disk margins >= {args.min_gm:g} dB / {args.min_pm:g} deg, "
-          f"every actuator's peak force ({PEAK_FACTOR:g} x predicted RMS) within its limit")
+          f"delay margin (DM, smallest of each path, each controller, all) above "
+          f"control.input_timeout_s {cfg.control.input_timeout_s * 1e3:g} ms, every "
+          f"actuator's peak force ({PEAK_FACTOR:g} x predicted RMS) within its limit")
     print(HEADER)
     for c in checks:
         print(format_line(c))

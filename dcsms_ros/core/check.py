@@ -4,7 +4,10 @@ Everything is judged on the loop that runs (:mod:`.loop_model`): the closed-loop
 (:mod:`.loop_stability`), the
 loop-at-a-time and per-stage disk margins (:mod:`.margins`) and the actuator forces predicted
 from the configured disturbances (:mod:`.spectra`), whose peak is taken as 4 x RMS (a Gaussian
-force exceeds it 0.006 % of the time) and compared with each actuator's limit.
+force exceeds it 0.006 % of the time) and compared with each actuator's limit. In real time the
+plant applies a force up to ``control.input_timeout_s`` after the sample it answers, so that
+timeout must stay below every delay margin (:func:`.margins.delay_margins`: each path alone,
+each controller's paths, all paths together).
 """
 
 from __future__ import annotations
@@ -21,7 +24,14 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import actuator_limits
 from dcsms_ros.core.loop_model import loop_model, pole_parts, s_plane
 from dcsms_ros.core.loop_stability import Stability, stability, unstable_reason
-from dcsms_ros.core.margins import DiskMargin, LoopMargin, margins
+from dcsms_ros.core.margins import (
+    DelayMargin,
+    DiskMargin,
+    LoopMargin,
+    OpenLoops,
+    delay_margins,
+    margins,
+)
 from dcsms_ros.core.modes import ALL_MODES, Mode
 from dcsms_ros.core.safety import MIN_GM_DB, MIN_PM_DEG, PEAK_FACTOR
 from dcsms_ros.core.spectra import rms, shaped
@@ -90,10 +100,19 @@ class ModeCheck:
     force_rms_n: Array
     force_limit_n: Array
     failures: list[str] = field(default_factory=list)
+    delays: list[DelayMargin] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
         return not self.failures
+
+    @property
+    def delay_s(self) -> tuple[str, float]:
+        """(paths, s) of the smallest delay margin of any path or group of paths (inf: no
+        feedback, or no loop gain reaches unit modulus)."""
+        cands = [(f"{m.controller}.{m.axis}", m.delay_s) for m in self.loops]
+        cands += [(d.name, d.delay_s) for d in self.delays]
+        return min(cands, key=lambda c: c[1], default=("-", math.inf))
 
     @property
     def force_peak_n(self) -> Array:
@@ -105,7 +124,9 @@ def check_mode(cfg: SystemConfig, mode: Mode, min_gm_db: float = MIN_GM_DB,
                min_pm_deg: float = MIN_PM_DEG) -> ModeCheck:
     """Judge one mode: stable, margins at least the minima, no predicted saturation."""
     st = stability(cfg, mode)
-    loops, disks = margins(cfg, mode)
+    ol = OpenLoops(cfg, mode)
+    loops, disks = margins(cfg, mode, loops_=ol)
+    delays = delay_margins(cfg, mode, loops_=ol)
     names, limit = actuator_limits(cfg)
     lm = shaped(cfg, loop_model(cfg, mode))
     force = rms(lm, lm.outputs["force"])
@@ -121,12 +142,18 @@ def check_mode(cfg: SystemConfig, mode: Mode, min_gm_db: float = MIN_GM_DB,
         fails.extend(f"stage{dk.stage} disk margin {dk.gm_db:.1f} dB / "
                      f"{dk.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg"
                      for dk in disks if dk.gm_db < min_gm_db or dk.pm_deg < min_pm_deg)
+        timeout = cfg.control.input_timeout_s
+        name, tau = ModeCheck(mode, st, loops, disks, [], force, limit, [], delays).delay_s
+        if tau <= timeout:
+            fails.append(f"delay margin of {name} {tau * 1e3:.1f} ms not above "
+                         f"control.input_timeout_s {timeout * 1e3:g} ms (a real-time force "
+                         "may be applied that late)")
         peak = PEAK_FACTOR * force
         over = [f"{n} {p:.3g} N > {lim:g} N" for n, p, lim in zip(names, peak, limit,
                                                                   strict=True) if p > lim]
         if over:
             fails.append("predicted saturation (peak = 4 x RMS): " + ", ".join(over))
-    return ModeCheck(mode, st, loops, disks, names, force, limit, fails)
+    return ModeCheck(mode, st, loops, disks, names, force, limit, fails, delays)
 
 
 def check_config(cfg: SystemConfig, modes: Sequence[Mode] = ALL_MODES,

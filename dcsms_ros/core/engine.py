@@ -9,7 +9,7 @@ reproduces :func:`simulate` sample for sample.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -20,6 +20,7 @@ from dcsms_ros.core.checkpoints import CheckpointFeed
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.decoupling import Decoupler
+from dcsms_ros.core.delayline import DelayLines
 from dcsms_ros.core.modes import ControllerId, Mode, controller_ids, enabled_controllers
 from dcsms_ros.core.simresult import SimResult
 from dcsms_ros.core.simulator import PlantSimulator, check_plant
@@ -36,7 +37,8 @@ def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None 
              progress: Callable[[float], None] | None = None,
              fast: bool | None = None, table: Array | None = None,
              trip: bool = True, excite: Array | None = None,
-             plant: SystemConfig | None = None, allow_unstable: bool = False) -> SimResult:
+             plant: SystemConfig | None = None, allow_unstable: bool = False,
+             delay: Mapping[str, int] | None = None) -> SimResult:
     """Run the closed loop for ``duration_s`` seconds.
 
     Parameters
@@ -77,10 +79,15 @@ def simulate(cfg: SystemConfig, mode: Mode, duration_s: float, seed: int | None 
     allow_unstable : bool
         The supervisor may re-engage a mode the model calls unstable (as ``allow_unstable``
         lets the mode-switch node run one).
+    delay : mapping of controller id to int, optional
+        Samples by which each listed controller's wrench reaches the plant late, as a slow
+        real-time graph delivers it (:mod:`.delayline`; a what-if the lockstep graph does not
+        run). Runs on the object path.
     """
     steps = int(round(duration_s * cfg.plant.rate_hz))
     args = (cfg, mode, seed, schedule, ground, table, trip)
-    kw: dict[str, Any] = {"excite": excite, "plant": plant, "allow_unstable": allow_unstable}
+    kw: dict[str, Any] = {"excite": excite, "plant": plant, "allow_unstable": allow_unstable,
+                          "delay": delay}
     res = Simulation(*args, fast=fast, **kw).run(steps, progress)
     if res is None:
         res = Simulation(*args, fast=False, **kw).run(steps, progress)
@@ -102,7 +109,8 @@ class Simulation:
                  table: Array | None = None, trip: bool = True,
                  fast: bool | None = None, excite: Array | None = None,
                  plant: SystemConfig | None = None,
-                 supervisor: Supervisor | None = None, allow_unstable: bool = False) -> None:
+                 supervisor: Supervisor | None = None, allow_unstable: bool = False,
+                 delay: Mapping[str, int] | None = None) -> None:
         self.cfg = cfg
         if supervisor is None and cfg.supervisor.enabled:
             supervisor = make_supervisor(cfg, mode, allow_unstable)
@@ -122,6 +130,7 @@ class Simulation:
         ids = controller_ids(n)
         self.ctrls = {cid: make_controller(cfg, cid, enabled=cid in active) for cid in ids}
         self.body = {cid: ControllerId.parse(cid).sensed_body for cid in ids}
+        self.delay = DelayLines(delay or {}, set(ids), cfg.plant.dof)
         self.events = sorted(((int(round(t * cfg.plant.rate_hz)), m) for t, m in schedule),
                              key=lambda e: e[0])
         self._ei = 0
@@ -133,7 +142,7 @@ class Simulation:
         self.k = 0
         if fast is None:
             fast = fastsim.available()
-        self.fast = bool(fast and fastsim.available())
+        self.fast = bool(fast and fastsim.available() and not any((delay or {}).values()))
         self._loop = (fastsim.FastLoop(self.sim, self.dec, self.ctrls, self.body)
                       if self.fast else None)
 
@@ -242,7 +251,7 @@ class Simulation:
             for i, (cid, c) in enumerate(self.ctrls.items()):
                 w = c.step(tw[self.body[cid]])
                 wrench_all[i, k] = w
-                w_out[cid] = w
+                w_out[cid] = self.delay.shift(cid, w)
             exc = self._excite_rows(self.k, 1)
             applied[k] = sim.advance(w_out, None if exc is None else exc[0])
             self.k += 1

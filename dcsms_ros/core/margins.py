@@ -14,6 +14,14 @@ bounds the structured singular value of the balanced sensitivity ``S - I/2``, ``
 over independent complex perturbations of each path (D-scaled upper bound, as
 ``control.disk_margins`` does with slycot's AB13MD; equal to it for one path). Feedforward is no
 loop: it stays closed. Frequencies in Hz.
+
+The delay margin of a set of paths is the smallest extra delay ``tau`` (s), the same on every
+path of the set, at which the loop reaches the edge of stability: ``det(I + e^{-j w tau} L_J)
+= 0``, so some eigenvalue ``lam`` of ``L_J`` has ``|lam| = 1`` at ``w`` and
+``tau = ((arg lam + pi) mod 2 pi) / w`` (one path: its gain crossovers). A real-time graph
+delays a force by up to ``control.input_timeout_s`` (the plant ages it from the sample it
+answers), so that timeout must stay below every margin: each path alone, each controller's
+paths together (one late node) and all paths together (a slow machine).
 """
 
 from __future__ import annotations
@@ -53,6 +61,20 @@ class LoopMargin:
     pm_deg: float
     wg_hz: float
     wp_hz: float
+    #: extra delay of this path alone that makes the loop marginal, s (inf: no crossover)
+    delay_s: float = math.inf
+
+
+@dataclass(frozen=True)
+class DelayMargin:
+    """The smallest delay ``delay_s`` (s) added to every path in ``paths`` at once that makes
+    the loop marginal, reached at ``f_hz`` (Hz; nan when no eigenvalue of the loop gain
+    reaches unit modulus: ``delay_s`` is then inf)."""
+
+    name: str
+    paths: tuple[str, ...]
+    delay_s: float
+    f_hz: float
 
 
 @dataclass(frozen=True)
@@ -167,6 +189,39 @@ def siso_margins(lfun: Callable[[Array], CArray], f: Array,
     return gm_db, pm, wg, wp
 
 
+def _delay_at(lam: complex, f_hz: float) -> float:
+    """Delay (s) that turns the loop-gain value ``lam`` (|lam| = 1) at ``f_hz`` onto -1."""
+    rot = (math.atan2(lam.imag, lam.real) + math.pi) % (2.0 * math.pi)
+    return rot / (2.0 * math.pi * f_hz)
+
+
+def delay_margin(lfun: Callable[[Array], CArray], f: Array, values: CArray | None = None
+                 ) -> tuple[float, float]:
+    """(delay_s, f_hz) of a loop gain given as ``f_hz -> L`` (shape (F,) or (F, m, m)),
+    searched on the grid ``f``: every frequency where an eigenvalue of ``L`` crosses unit
+    modulus (the k-th largest modulus is continuous in f, so each crossing is bracketed on
+    the grid and refined), the smallest delay that moves it onto -1."""
+    lv = lfun(f) if values is None else values
+
+    def eig(x: CArray) -> CArray:
+        v = np.asarray(x)
+        return (np.linalg.eigvals(v) if v.ndim == 3 else v[:, None]).astype(complex)
+
+    mods = -np.sort(-np.abs(eig(lv)), axis=1)
+    best, where = math.inf, math.nan
+    for k in range(mods.shape[1]):
+        def kth(x: float, k: int = k) -> float:
+            return float(-np.sort(-np.abs(eig(lfun(np.array([x])))[0]))[k] - 1.0)
+
+        for fc in _refine(kth, f, mods[:, k] - 1.0):
+            lam = eig(lfun(np.array([fc])))[0]
+            one = lam[int(np.argmin(np.abs(np.abs(lam) - 1.0)))]
+            tau = _delay_at(complex(one), fc)
+            if tau < best:
+                best, where = tau, fc
+    return best, where
+
+
 def _mu_upper(m: CArray) -> float:
     """D-scaled upper bound of the structured singular value of ``m`` (m x m) over
     independent complex scalars on the diagonal: ``min_D sigma_max(D m D^-1)``."""
@@ -215,8 +270,18 @@ def disk_margin(l_values: CArray, f: Array) -> tuple[float, float]:
     return (math.inf if best == 0.0 else 1.0 / best), where
 
 
-def margins(cfg: SystemConfig, mode: Mode, f_hz: Array | None = None
-            ) -> tuple[list[LoopMargin], list[DiskMargin]]:
+def _open(cfg: SystemConfig, mode: Mode, f_hz: Array | None, loops_: OpenLoops | None
+          ) -> tuple[OpenLoops, Array, CArray] | None:
+    """The open loops, the search grid and ``G`` on it (None: no feedback path)."""
+    ol = OpenLoops(cfg, mode) if loops_ is None else loops_
+    if ol.model is None:
+        return None
+    f = frequency_grid(cfg.plant.rate_hz) if f_hz is None else np.asarray(f_hz, float)
+    return ol, f, ol.g(f)
+
+
+def margins(cfg: SystemConfig, mode: Mode, f_hz: Array | None = None,
+            loops_: OpenLoops | None = None) -> tuple[list[LoopMargin], list[DiskMargin]]:
     """Loop-at-a-time margins of every feedback path and the disk margin of every stage.
 
     Parameters
@@ -225,18 +290,20 @@ def margins(cfg: SystemConfig, mode: Mode, f_hz: Array | None = None
     mode : Mode
     f_hz : ndarray, optional
         Search grid (default :func:`frequency_grid`).
+    loops_ : OpenLoops, optional
+        The mode's open loops when already built.
     """
-    ol = OpenLoops(cfg, mode)
-    if ol.model is None:
+    got = _open(cfg, mode, f_hz, loops_)
+    if got is None:
         return [], []
-    f = frequency_grid(cfg.plant.rate_hz) if f_hz is None else np.asarray(f_hz, float)
-    g = ol.g(f)
+    ol, f, g = got
     loops = []
     for i, b in enumerate(ol.breaks):
         lv = ol.loop_gain(g, [i])[:, 0, 0]
         gm, pm, wg, wp = siso_margins(ol.siso(i), f, lv)
+        tau, _ = delay_margin(ol.siso(i), f, lv)
         loops.append(LoopMargin(b.controller, axis_names(cfg.plant.dof)[b.axis], gm, pm, wg,
-                                wp))
+                                wp, tau))
     disks = []
     for stage, idx in ol.stage_paths().items():
         alpha, fw = disk_margin(ol.loop_gain(g, idx), f)
@@ -245,5 +312,30 @@ def margins(cfg: SystemConfig, mode: Mode, f_hz: Array | None = None
     return loops, disks
 
 
-__all__ = ["DiskMargin", "LoopMargin", "OpenLoops", "disk_from_alpha", "disk_margin",
-           "feedback_breaks", "frequency_grid", "margins", "siso_margins"]
+def delay_margins(cfg: SystemConfig, mode: Mode, f_hz: Array | None = None,
+                  loops_: OpenLoops | None = None) -> list[DelayMargin]:
+    """Delay margins of each controller's feedback paths together (one late node; the other
+    loops closed and on time) and of all feedback paths together (name ``all``); parameters
+    as :func:`margins`."""
+    got = _open(cfg, mode, f_hz, loops_)
+    if got is None:
+        return []
+    ol, f, g = got
+    groups: dict[str, list[int]] = {}
+    for i, b in enumerate(ol.breaks):
+        groups.setdefault(b.controller, []).append(i)
+    if len(groups) > 1:
+        groups["all"] = list(range(len(ol.breaks)))
+    out = []
+    for name, idx in groups.items():
+        def lfun(x: Array, idx: list[int] = idx) -> CArray:
+            return ol.loop_gain(ol.g(np.atleast_1d(x)), idx)
+
+        tau, fw = delay_margin(lfun, f, ol.loop_gain(g, idx))
+        out.append(DelayMargin(name, tuple(ol.names[i] for i in idx), tau, fw))
+    return out
+
+
+__all__ = ["DelayMargin", "DiskMargin", "LoopMargin", "OpenLoops", "delay_margin",
+           "delay_margins", "disk_from_alpha", "disk_margin", "feedback_breaks",
+           "frequency_grid", "margins", "siso_margins"]

@@ -5,7 +5,9 @@ and, optionally, the high-pass and sensor-extension corners. Each candidate is j
 discrete model of the loop as it runs (:mod:`dcsms_ros.core.loop_model`):
 
 * constraints (each a slack, feasible when >= 0): every mode stable, every loop-at-a-time and
-  disk margin at least the minimum, every actuator's predicted force RMS at most limit / 4.
+  disk margin at least the minimum, every delay margin at least :data:`DELAY_BUFFER` times
+  ``control.input_timeout_s`` (a real-time force is applied up to that late), every actuator's
+  predicted force RMS at most limit / 4.
   Feedforward is no loop, so the poles and margins of a mode with and without FFC are the same:
   only the distinct sets of feedback loops are analysed;
 * objective ``attenuation``: the largest over the table's axes of ln(Table-4 value of
@@ -37,7 +39,7 @@ from dcsms_ros.analysis.predict import TopVelocity, band_rms, resonances, table_
 from dcsms_ros.core.check import actuator_limits
 from dcsms_ros.core.config import SystemConfig, with_overrides
 from dcsms_ros.core.loop_model import loop_model, poles
-from dcsms_ros.core.margins import frequency_grid, margins
+from dcsms_ros.core.margins import OpenLoops, delay_margins, frequency_grid, margins
 from dcsms_ros.core.model import axis_names
 from dcsms_ros.core.modes import ALL_MODES, ControllerId, Mode, enabled_controllers
 from dcsms_ros.core.safety import MIN_GM_DB, MIN_PM_DEG, PEAK_FACTOR
@@ -51,6 +53,8 @@ TUNE_GRID_POINTS = 500
 #: Margin kept above the minimum while tuning (dB, deg): the final check's finer grid can read a
 #: margin a little lower than the tuning grid did.
 MARGIN_BUFFER = (0.3, 1.0)
+#: Least ratio of every delay margin to ``control.input_timeout_s`` while tuning.
+DELAY_BUFFER = 1.05
 #: Objectives :func:`tune` knows.
 OBJECTIVES = ("attenuation", "table4")
 #: Band-integration points while tuning.
@@ -249,14 +253,17 @@ def judge(cfg: SystemConfig, axes: Sequence[str], rows: Sequence[str], objective
           grid: Array | None = None, order: Sequence[str] = (),
           order_gap: float = ORDER_GAP) -> Evaluation:
     """Objective, constraint slacks and predicted Table-4 rows of one configuration."""
-    slack_stab, gms, pms = math.inf, [math.inf], [math.inf]
+    slack_stab, gms, pms, dms = math.inf, [math.inf], [math.inf], [math.inf]
     for mode in _loop_sets(cfg).values():
         m = loop_model(cfg, mode)
         growth = float(np.max(np.log(np.abs(poles(m))))) * m.fs  # 1/s
         slack_stab = min(slack_stab, -growth)
-        loops, disks = margins(cfg, mode, grid)
+        ol = OpenLoops(cfg, mode)
+        loops, disks = margins(cfg, mode, grid, ol)
         gms += [abs(x.gm_db) for x in loops] + [d.gm_db for d in disks]
         pms += [x.pm_deg for x in loops] + [d.pm_deg for d in disks]
+        dms += [x.delay_s for x in loops] + [d.delay_s for d in delay_margins(cfg, mode, grid,
+                                                                              ol)]
     force = math.inf
     for mode in ALL_MODES:
         if not mode.controllers:
@@ -267,8 +274,10 @@ def judge(cfg: SystemConfig, axes: Sequence[str], rows: Sequence[str], objective
         # an unstable mode has no stationary force: a finite slack keeps the search going
         force = min(force, max(float(np.min(1.0 - PEAK_FACTOR * f / limits)), -10.0))
     gm, pm = min(gms), min(pms)
+    # no feedback loop reaches unit gain (margin inf): a finite slack for the search
+    delay = min(min(dms) / (DELAY_BUFFER * cfg.control.input_timeout_s) - 1.0, 10.0)
     slacks = {"stable": slack_stab, "gain margin": (gm - min_gm) / min_gm,
-              "phase margin": (pm - min_pm) / min_pm, "force": force}
+              "phase margin": (pm - min_pm) / min_pm, "delay margin": delay, "force": force}
     ref = TopVelocity(cfg, Mode.PASSIVE)
     f_r = resonances(ref, axes)
     base = {a: float(band_rms(ref, f_r[a], TUNE_BAND_POINTS)[j]) for j, a in enumerate(axes)}
