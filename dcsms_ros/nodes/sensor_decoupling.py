@@ -5,9 +5,12 @@ Subscribes to ``/dcsms/sensors/raw`` (``sensor_msgs/JointState``, ``velocity`` m
 ``/dcsms/velocity/<body>`` (``geometry_msgs/TwistStamped``, frame_id = body) with the sample's
 stamp; both sides as serialized CDR (:mod:`dcsms_ros.cdr`). A repeated stamp (lockstep
 retransmission) is answered from the cache without stepping the filters again; an older stamp
-is ignored (:class:`~dcsms_ros.protocols.responder.Answerer`). Channels are matched by
-name, so a publisher may send them in any order; a missing channel reads NaN, which the core
-turns into a zero twist for that body (counted).
+is ignored (:class:`~dcsms_ros.protocols.responder.Answerer`). In real time the filters step
+through every queued sample (:func:`~dcsms_ros.ros.qos.every_sample_sub`) and only the newest
+is answered; a sample missing from the stream (lost) is stepped with the previous reading,
+up to an input timeout's worth, so the filters keep the plant's time base (``held_samples``).
+Channels are matched by name, so a publisher may send them in any order; a missing channel
+reads NaN, which the core turns into a zero twist for that body (counted).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from sensor_msgs.msg import JointState
 from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, StampedWriter
 from dcsms_ros.core import topics
 from dcsms_ros.core.decoupling import Decoupler
+from dcsms_ros.protocols.responder import skipped
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
@@ -68,11 +72,19 @@ class SensorDecouplingNode(GraphNode, Hosted):
                      for b in self.bodies]
         self.reports = Reports(self, self.hot)
         self.hot.subscribe(JointState, topics.LOCAL.sensors_raw, self._on_raw,
-                           qos.stream_sub(lockstep), raw=True)
+                           qos.every_sample_sub(lockstep), raw=True,
+                           flush=None if lockstep else self._answer)
         # lockstep: the first sample is answered only once every reader is matched
         self.answers = answerer(self, self._publish, lockstep, self.pubs, self.observed)
         self.samples = 0
+        self.held_samples = 0  # missing samples stepped with the previous reading
         self.bad_messages = 0
+        self.published = 0  # answers sent (a repeat too); real time: fewer than samples
+        self._rate = cfg.plant.rate_hz
+        self._hold_cap = round(cfg.control.input_timeout_s * cfg.plant.rate_hz)
+        self._last_raw: np.ndarray | None = None
+        self._pending: tuple[int, np.ndarray] | None = None  # real time: the newest answer
+        self.lockstep = lockstep
         self._log_nonfinite = Throttled(self.get_logger(), 2.0)
         self.housekeeping(1.0, self._report)
         self.hot.start()
@@ -103,16 +115,38 @@ class SensorDecouplingNode(GraphNode, Hosted):
         ns, names, v = self.reader.read(buf)
         # implausible channels are counted on arrival and read NaN (that body's twist is zero)
         raw = self.guard.clean_each(self._channels(names, v), np.nan)
+        last = self.answers.last_ns
         if not self.answers.due(ns):
             return
+        if self._last_raw is not None:
+            gap = skipped(last, ns, self._rate, self._hold_cap)
+            for _ in range(gap):
+                self.dec.step(self._last_raw)
+            self.held_samples += gap
         tw = self.dec.step(raw)
+        self._last_raw = raw
         self.samples += 1
-        self.answers.reply(ns, [w.encode(ns, tw[i]) for i, w in enumerate(self.writers)])
+        if self.lockstep:
+            self.answers.reply(ns, self._encode(ns, tw))
+        else:  # the newest of this wake-up's samples is answered by _answer
+            self.answers.advance(ns)
+            self._pending = (ns, tw)
         if self.dec.nonfinite:
             self._log_nonfinite(lambda: f"non-finite sensor channels: {self.dec.nonfinite} "
                                         f"body samples zeroed")
 
+    def _encode(self, ns: int, tw: np.ndarray) -> list[bytes]:
+        return [w.encode(ns, tw[i]) for i, w in enumerate(self.writers)]
+
+    def _answer(self) -> None:
+        """Real time: publish the answer to the newest sample read at this wake-up."""
+        if self._pending is not None:
+            ns, tw = self._pending
+            self._pending = None
+            self._publish(self.answers.store(ns, self._encode(ns, tw)))
+
     def _publish(self, msgs: list[bytes]) -> None:
+        self.published += 1
         for pub, m in zip(self.pubs, msgs, strict=True):
             pub.publish(m)
 
@@ -120,7 +154,9 @@ class SensorDecouplingNode(GraphNode, Hosted):
         level = DiagnosticStatus.WARN if self.dec.nonfinite or self.bad_messages else \
             DiagnosticStatus.OK
         self.reports.publish(self.answers.last_ns, [Status(level, "running", {
-            "samples": self.samples, "repeats": self.answers.repeats,
+            "samples": self.samples, "held_samples": self.held_samples,
+            "published": self.published,
+            "repeats": self.answers.repeats,
             "out_of_order": self.answers.out_of_order,
             "nonfinite": self.dec.nonfinite, "bad_messages": self.bad_messages,
             "rejected_inputs": self.guard.rejected})])

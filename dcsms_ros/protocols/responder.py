@@ -57,6 +57,12 @@ class StampResponder(Generic[T]):
             return Verdict.OLD
         return Verdict.NEW
 
+    def advance(self, stamp_ns: int) -> None:
+        """The input stamped ``stamp_ns`` is computed, its answer not known yet (real time:
+        only the newest of a burst is answered, :meth:`store`-d then)."""
+        self.last_ns = stamp_ns
+        self.cache = None
+
     def store(self, stamp_ns: int, answer: T) -> T:
         """Remember ``answer`` to the input stamped ``stamp_ns``; returns it."""
         self.last_ns = stamp_ns
@@ -116,4 +122,12 @@ class Answerer(StampResponder[T]):
         return ok
 
 
-__all__ = ["Answerer", "StampResponder", "Verdict"]
+def skipped(last_ns: int, ns: int, rate_hz: float, cap: int) -> int:
+    """Whole samples between an answered stamp ``last_ns`` and the next one ``ns`` (ns) at
+    ``rate_hz``, at most ``cap``; 0 before the first answer (``last_ns`` < 0)."""
+    if last_ns < 0:
+        return 0
+    return max(min(round((ns - last_ns) * rate_hz / 1e9) - 1, cap), 0)
+
+
+__all__ = ["Answerer", "StampResponder", "Verdict", "skipped"]

@@ -80,8 +80,9 @@ class RunSummary:
         Messages of the per-sample streams in the bag, and samples x those streams (None: no
         recording). In lockstep that is what their publishers published (each answers every
         sample once; a retransmission repeats one): the bag holds all of it. In real time it
-        is only a scale: a reader of keep-last 1 skips a sample under load and publishes
-        nothing for it, a controller whose input is stale publishes zero forces of its own.
+        is only a scale: a controller (keep-last 1) skips a sample under load and publishes
+        nothing for it, the decoupling answers only the newest of the samples it read at one
+        wake-up, a controller whose input is stale publishes zero forces of its own.
     published : int or None
         What the publishers of those streams published, as the recorder counted it from their
         sequence numbers (None: not known for every stream). ``recorded`` against it is the

@@ -40,6 +40,7 @@ from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.protocols.gate import MATCH_TIMEOUT_S
 from dcsms_ros.protocols.pacer import Watchdog
+from dcsms_ros.protocols.responder import skipped
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.connectivity import has_reader, writer_matched
@@ -160,10 +161,8 @@ class ControllerNode(GraphNode, Hosted):
             # so a switch or a trip fades in control.fade_time_s of plant time, not messages;
             # a fade-in skips at most an input timeout: a longer gap (a stall, or the old first
             # sample a just started node may take) must not become a step of the gain
-            gap = min(round((ns - last) * self.rate / 1e9) - 1, 100_000)
-            if self.loop.enabled:
-                gap = min(gap, round(self.watchdog.timeout_s * self.rate))
-            for _ in range(gap):
+            cap = round(self.watchdog.timeout_s * self.rate) if self.loop.enabled else 100_000
+            for _ in range(skipped(last, ns, self.rate, cap)):
                 self.loop.fader.step()
         if self.watchdog.feed(time.monotonic()):
             self._log_back(lambda: f"{self.cid}: input is back")

@@ -88,8 +88,11 @@ class HotPath:
             context, DrivenContext) else None)
         self._inboxes: dict[Subscription, Inbox] = {}
         self._served: list[tuple[Subscription, Callable[[Any], None]]] = []
-        #: per served subscription: handle, message type, raw, handler (read once, not per take)
-        self._takes: list[tuple[Any, Any, bool, Callable[[Any], None]]] = []
+        #: per served subscription: handle, message type, raw, handler, flush (read once, not
+        #: per take)
+        self._takes: list[tuple[Any, Any, bool, Callable[[Any], None],
+                                Callable[[], None] | None]] = []
+        self._flush: dict[Subscription, Callable[[], None] | None] = {}
         self._asked: dict[Subscription, tuple[Any, str, Callable[[Any], None], QoSProfile]] = {}
         self._replaced: dict[Subscription, Subscription] = {}
         #: what :meth:`after` queued while the host holds the lock for an executor callback
@@ -126,16 +129,22 @@ class HotPath:
         return self.loop is not None and not self._own
 
     def subscribe(self, msg_type: Any, topic: str, handler: Callable[[Any], None],
-                  qos: QoSProfile, raw: bool = False) -> Subscription:
+                  qos: QoSProfile, raw: bool = False,
+                  flush: Callable[[], None] | None = None) -> Subscription:
         """A subscription served by the hot loop (or by the executor when the path is off);
-        ``raw``: the handler gets the serialized bytes (see :mod:`dcsms_ros.cdr`)."""
+        ``raw``: the handler gets the serialized bytes (see :mod:`dcsms_ros.cdr`);
+        ``flush``: called after the handler has had every message queued at a wake-up (after
+        each one where messages come one at a time: in-process, or from the executor), so a
+        node that must read every sample can answer only the newest."""
+        each = handler if flush is None else _then(handler, flush)
         if not self.on:
-            return self.node.create_subscription(msg_type, topic, handler, qos, raw=raw)
+            return self.node.create_subscription(msg_type, topic, each, qos, raw=raw)
         sub = self._reader(msg_type, topic, handler, qos, raw)
         self.subs.append((sub, handler))
+        self._flush[sub] = flush
         if self.bus is not None and raw:
             # keep-last 1 (real time): the newest sample only, as its DDS reader would keep
-            self._local(sub.topic_name, handler, qos.history == HistoryPolicy.KEEP_LAST and
+            self._local(sub.topic_name, each, qos.history == HistoryPolicy.KEEP_LAST and
                         qos.depth == 1)
         return sub
 
@@ -189,9 +198,11 @@ class HotPath:
                 self.node.destroy_subscription(old)
                 self._replaced[old] = new
                 self.subs = [(new if s is old else s, h) for s, h in self.subs]
+                self._flush[new] = self._flush.pop(old, None)
         self._asked.clear()
         self._served = [(s, h) for s, h in self.subs if self.served_from_dds(s)]
-        self._takes = [(s.handle, s.msg_type, s.raw, h) for s, h in self._served]
+        self._takes = [(s.handle, s.msg_type, s.raw, h, self._flush.get(s))
+                       for s, h in self._served]
         return [s for s, _ in self._served]
 
     def detached(self, msg_type: Any, topic: str, qos: QoSProfile,
@@ -274,13 +285,16 @@ class HotPath:
         lock; returns how many."""
         n = 0
         with self.lock:
-            for h, typ, raw, handler in self._takes:
+            for h, typ, raw, handler, flush in self._takes:
+                n0 = n
                 while True:
                     got = h.take_message(typ, raw)
                     if got is None:
                         break
                     n += 1
                     handler(got[0])
+                if flush is not None and n > n0:
+                    flush()
         self.messages += n
         return n
 
@@ -290,6 +304,14 @@ class HotPath:
             return None
         with self.lock:
             return self._tick()
+
+
+def _then(handler: Callable[[Any], None], flush: Callable[[], None]) -> Callable[[Any], None]:
+    """``handler`` followed by ``flush`` for each message."""
+    def each(msg: Any) -> None:
+        handler(msg)
+        flush()
+    return each
 
 
 # the loop's names too, for the modules that import them from here

@@ -23,7 +23,8 @@ What differs between the two schedules:
   reliable: per process 4.7-5.3 % against 7.8-16.3 %; composed 1.9-4.9 % against 4.6-13.6 %;
   composed with the recorder stopped for 5 s 6.1-12.4 % against 15.7-17.6 %). Control-path
   readers are keep-last 1 (the ROS
-  ``sensor_data`` profile); observers keep :data:`REALTIME_DEPTH`.
+  ``sensor_data`` profile), except the decoupling's, which must read every measurement
+  (:func:`every_sample_sub`); observers keep :data:`REALTIME_DEPTH`.
 * **latched state** (``/dcsms/config``) - reliable, transient local, depth 1: a late joiner
   (a recorder, a restarted node) gets the current value at once. **Events** (``/dcsms/mode``,
   ``/dcsms/supervisor/state``) keep :data:`EVENT_DEPTH`: every change reaches a recorder.
@@ -83,6 +84,26 @@ def stream_pub(lockstep: bool, durable: bool = False) -> QoSProfile:
 def stream_sub(lockstep: bool) -> QoSProfile:
     """Reader of a per-sample stream on the control path (see the module notes)."""
     return QoSProfile(depth=LOCKSTEP_DEPTH if lockstep else 1, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+#: Real-time reader history of a control-path node that must read every sample (the
+#: decoupling): 400 samples, 0.2 s at 2 kHz, longer than the stalls one process per node
+#: showed on 2 cores (control latency p99 42-106 ms).
+EVERY_SAMPLE_DEPTH = 400
+
+
+def every_sample_sub(lockstep: bool) -> QoSProfile:
+    """Reader of a per-sample stream whose every sample changes the reader's state: the
+    decoupling's low-frequency extension inverts the geophones' roll-off (up to 81x below
+    0.5 Hz for table1's 4.5 Hz geophones), so a skipped measurement is an error it integrates
+    (``test/core/test_skipped_samples.py``: in the batch model 14 % of raw samples skipped
+    in bursts raised table1's DFBC+FFC stage velocities 5x, as many controller inputs
+    skipped 1.1x). Best-effort (never waits on the writer), keep-last
+    :data:`EVERY_SAMPLE_DEPTH` in real time."""
+    return QoSProfile(depth=LOCKSTEP_DEPTH if lockstep else EVERY_SAMPLE_DEPTH,
+                      history=HistoryPolicy.KEEP_LAST,
                       reliability=ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.VOLATILE)
 

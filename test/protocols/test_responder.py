@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from dcsms_ros.protocols.responder import Answerer, StampResponder, Verdict
+from dcsms_ros.protocols.responder import Answerer, StampResponder, Verdict, skipped
 
 
 def test_new_repeat_old() -> None:
@@ -89,3 +89,26 @@ def test_list_answer_is_repeated_as_one_object() -> None:
     a.reply(7, [b"x", b"y"])
     assert not a.due(7)
     assert sent == [[b"x", b"y"], [b"x", b"y"]] and sent[0] is sent[1]
+
+
+@pytest.mark.parametrize(("last", "ns", "cap", "want"), [
+    (-1, 5_000_000, 20, 0),  # nothing answered yet
+    (0, 500_000, 20, 0),  # the next sample at 2 kHz
+    (0, 1_500_000, 20, 2),  # two missing
+    (0, 1_499_000, 20, 2),  # a stamp off by 1 us still counts whole samples
+    (0, 50_000_000, 20, 20),  # a stall: at most cap
+    (0, 0, 20, 0),
+])
+def test_skipped_counts_whole_missing_samples(last, ns, cap, want):
+    assert skipped(last, ns, 2000.0, cap) == want
+
+
+def test_advance_marks_a_stamp_computed_without_an_answer_yet():
+    """Real time: a sample computed as part of a burst is not recomputed if seen again, nor
+    answered from a cache (it has none); an older stamp is old."""
+    r: StampResponder[str] = StampResponder()
+    r.advance(10)
+    assert r.cache is None and r.last_ns == 10
+    assert r.judge(5) is Verdict.OLD
+    assert r.judge(11) is Verdict.NEW
+    assert r.store(10, "a") == "a" and r.judge(10) is Verdict.REPEAT
