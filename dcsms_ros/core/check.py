@@ -31,6 +31,7 @@ from dcsms_ros.core.margins import (
     OpenLoops,
     delay_margins,
     margins,
+    smallest_delay,
 )
 from dcsms_ros.core.modes import ALL_MODES, Mode
 from dcsms_ros.core.safety import MIN_GM_DB, MIN_PM_DEG, PEAK_FACTOR
@@ -108,11 +109,8 @@ class ModeCheck:
 
     @property
     def delay_s(self) -> tuple[str, float]:
-        """(paths, s) of the smallest delay margin of any path or group of paths (inf: no
-        feedback, or no loop gain reaches unit modulus)."""
-        cands = [(f"{m.controller}.{m.axis}", m.delay_s) for m in self.loops]
-        cands += [(d.name, d.delay_s) for d in self.delays]
-        return min(cands, key=lambda c: c[1], default=("-", math.inf))
+        """(paths, s) of the smallest delay margin (:func:`.margins.smallest_delay`)."""
+        return smallest_delay(self.loops, self.delays)
 
     @property
     def force_peak_n(self) -> Array:
@@ -143,7 +141,7 @@ def check_mode(cfg: SystemConfig, mode: Mode, min_gm_db: float = MIN_GM_DB,
                      f"{dk.pm_deg:.0f} deg below {min_gm_db:g} dB / {min_pm_deg:g} deg"
                      for dk in disks if dk.gm_db < min_gm_db or dk.pm_deg < min_pm_deg)
         timeout = cfg.control.input_timeout_s
-        name, tau = ModeCheck(mode, st, loops, disks, [], force, limit, [], delays).delay_s
+        name, tau = smallest_delay(loops, delays)
         if tau <= timeout:
             fails.append(f"delay margin of {name} {tau * 1e3:.1f} ms not above "
                          f"control.input_timeout_s {timeout * 1e3:g} ms (a real-time force "

@@ -270,6 +270,15 @@ def disk_margin(l_values: CArray, f: Array) -> tuple[float, float]:
     return (math.inf if best == 0.0 else 1.0 / best), where
 
 
+def smallest_delay(loops: Sequence[LoopMargin], delays: Sequence[DelayMargin]
+                   ) -> tuple[str, float]:
+    """(paths, s) of the smallest delay margin of any path alone or group of paths
+    (``("-", inf)``: no feedback, or no loop gain reaches unit modulus)."""
+    cands = [(f"{m.controller}.{m.axis}", m.delay_s) for m in loops]
+    cands += [(d.name, d.delay_s) for d in delays]
+    return min(cands, key=lambda c: c[1], default=("-", math.inf))
+
+
 def _open(cfg: SystemConfig, mode: Mode, f_hz: Array | None, loops_: OpenLoops | None
           ) -> tuple[OpenLoops, Array, CArray] | None:
     """The open loops, the search grid and ``G`` on it (None: no feedback path)."""
@@ -338,4 +347,4 @@ def delay_margins(cfg: SystemConfig, mode: Mode, f_hz: Array | None = None,
 
 __all__ = ["DelayMargin", "DiskMargin", "LoopMargin", "OpenLoops", "delay_margin",
            "delay_margins", "disk_from_alpha", "disk_margin", "feedback_breaks",
-           "frequency_grid", "margins", "siso_margins"]
+           "frequency_grid", "margins", "siso_margins", "smallest_delay"]

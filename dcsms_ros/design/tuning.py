@@ -39,7 +39,13 @@ from dcsms_ros.analysis.predict import TopVelocity, band_rms, resonances, table_
 from dcsms_ros.core.check import actuator_limits
 from dcsms_ros.core.config import SystemConfig, with_overrides
 from dcsms_ros.core.loop_model import loop_model, poles
-from dcsms_ros.core.margins import OpenLoops, delay_margins, frequency_grid, margins
+from dcsms_ros.core.margins import (
+    OpenLoops,
+    delay_margins,
+    frequency_grid,
+    margins,
+    smallest_delay,
+)
 from dcsms_ros.core.model import axis_names
 from dcsms_ros.core.modes import ALL_MODES, ControllerId, Mode, enabled_controllers
 from dcsms_ros.core.safety import MIN_GM_DB, MIN_PM_DEG, PEAK_FACTOR
@@ -253,7 +259,7 @@ def judge(cfg: SystemConfig, axes: Sequence[str], rows: Sequence[str], objective
           grid: Array | None = None, order: Sequence[str] = (),
           order_gap: float = ORDER_GAP) -> Evaluation:
     """Objective, constraint slacks and predicted Table-4 rows of one configuration."""
-    slack_stab, gms, pms, dms = math.inf, [math.inf], [math.inf], [math.inf]
+    slack_stab, gms, pms, dms = math.inf, [math.inf], [math.inf], math.inf
     for mode in _loop_sets(cfg).values():
         m = loop_model(cfg, mode)
         growth = float(np.max(np.log(np.abs(poles(m))))) * m.fs  # 1/s
@@ -262,8 +268,7 @@ def judge(cfg: SystemConfig, axes: Sequence[str], rows: Sequence[str], objective
         loops, disks = margins(cfg, mode, grid, ol)
         gms += [abs(x.gm_db) for x in loops] + [d.gm_db for d in disks]
         pms += [x.pm_deg for x in loops] + [d.pm_deg for d in disks]
-        dms += [x.delay_s for x in loops] + [d.delay_s for d in delay_margins(cfg, mode, grid,
-                                                                              ol)]
+        dms = min(dms, smallest_delay(loops, delay_margins(cfg, mode, grid, ol))[1])
     force = math.inf
     for mode in ALL_MODES:
         if not mode.controllers:
@@ -275,7 +280,7 @@ def judge(cfg: SystemConfig, axes: Sequence[str], rows: Sequence[str], objective
         force = min(force, max(float(np.min(1.0 - PEAK_FACTOR * f / limits)), -10.0))
     gm, pm = min(gms), min(pms)
     # no feedback loop reaches unit gain (margin inf): a finite slack for the search
-    delay = min(min(dms) / (DELAY_BUFFER * cfg.control.input_timeout_s) - 1.0, 10.0)
+    delay = min(dms / (DELAY_BUFFER * cfg.control.input_timeout_s) - 1.0, 10.0)
     slacks = {"stable": slack_stab, "gain margin": (gm - min_gm) / min_gm,
               "phase margin": (pm - min_pm) / min_pm, "delay margin": delay, "force": force}
     ref = TopVelocity(cfg, Mode.PASSIVE)
