@@ -171,15 +171,20 @@ def print_model_check(cfg: SystemConfig) -> None:
         print(line, flush=True)
 
 
-def refuse_unstable_start(cfg: SystemConfig, mode: Mode, allow_unstable: bool) -> None:
+def refuse_unstable_start(cfg: SystemConfig, mode: Mode, allow_unstable: bool,
+                          realtime: bool = False) -> None:
     """Raise :class:`DcsmsError` when the graph would start in a ``mode`` the model calls
-    unstable and ``--allow-unstable`` was not given (the guard a switch passes)."""
+    unstable (``realtime``: or that forces ``control.input_timeout_s`` late destabilise) and
+    ``--allow-unstable`` was not given (the guard a switch passes)."""
     if allow_unstable or mode is Mode.PASSIVE:
         return
     # deferred: python-control and the loop model, not for `dcsms --help`
     from dcsms_ros.core.check import unstable_reason  # noqa: PLC0415 - deferred for --help
+    from dcsms_ros.core.margins import late_force_reason  # noqa: PLC0415 - as above
 
     reason = unstable_reason(cfg, mode)
+    if reason is None and realtime:
+        reason = late_force_reason(cfg, mode)
     if reason is not None:
         raise DcsmsError(f"--mode {mode.label}: {reason}; refused (--allow-unstable runs it)")
 

@@ -210,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.excite_off:
         raise DcsmsError("--excite-off needs --excite SPEC")
     print_model_check(cfg)
-    refuse_unstable_start(cfg, mode, args.allow_unstable)
+    refuse_unstable_start(cfg, mode, args.allow_unstable, args.schedule == "realtime")
     observers = list(args.wait_for_subscribers)
     spec = build_graph(cfg, args, args.schedule, mode, args.duration or 0.0, events)
     if args.record is not None:

@@ -345,6 +345,25 @@ def delay_margins(cfg: SystemConfig, mode: Mode, f_hz: Array | None = None,
     return out
 
 
+def late_force_reason(cfg: SystemConfig, mode: Mode, late_s: float | None = None
+                      ) -> str | None:
+    """None when ``mode`` stays stable with forces up to ``late_s`` s late (default
+    ``control.input_timeout_s``: how late a real-time plant applies a force), one controller's
+    or all of them (:func:`delay_margins`: a controller's axes travel in one message, so its
+    paths are late together); else a one-line reason naming the smallest margin."""
+    late = cfg.control.input_timeout_s if late_s is None else late_s
+    dms = delay_margins(cfg, mode)
+    if not dms:
+        return None
+    worst = min(dms, key=lambda d: d.delay_s)
+    if worst.delay_s > late:
+        return None
+    return (f"{mode.label} goes unstable with forces {late * 1e3:g} ms late "
+            f"(control.input_timeout_s): the delay margin of {worst.name} is "
+            f"{worst.delay_s * 1e3:.1f} ms at {worst.f_hz:.1f} Hz")
+
+
 __all__ = ["DelayMargin", "DiskMargin", "LoopMargin", "OpenLoops", "delay_margin",
            "delay_margins", "disk_from_alpha", "disk_margin", "feedback_breaks",
-           "frequency_grid", "margins", "siso_margins", "smallest_delay"]
+           "frequency_grid", "late_force_reason", "margins", "siso_margins",
+           "smallest_delay"]

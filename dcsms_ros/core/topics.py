@@ -116,6 +116,13 @@ class Names:
         on a trip every controller disabled); ``frame_id`` ``ok`` or ``tripped``."""
         return self._join("trip/checked")
 
+    def ready(self, role: str) -> str:
+        """std_msgs/Bool, transient local depth 1 (real time): True once DDS matched the
+        per-sample readers and writers of control-path node ``role`` (``sensor_decoupling``, a
+        controller id, ``excitation``); the plant starts after hearing each
+        (:mod:`dcsms_ros.ros.readiness`)."""
+        return self._join(f"{role}/ready")
+
     def velocity(self, body: str) -> str:
         """geometry_msgs/TwistStamped: decoupled velocity of ``body`` at its reference point
         (m/s, rad/s), published by the sensor-decoupling node."""

@@ -46,6 +46,7 @@ from dcsms_ros.ros.params import (
     declare_observed,
     declare_schedule,
 )
+from dcsms_ros.ros.readiness import ReadyAnnouncer
 from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.runtime import main_for
 
@@ -102,6 +103,9 @@ class ExcitationNode(GraphNode, Hosted):
                                  qos.events())
         self.create_service(SetBool, "~/enable", self._on_enable)
         self.housekeeping(1.0, self._report)
+        # real time: the plant starts once DDS matched this node's ends (lockstep retransmits)
+        self.ready = (None if self.lockstep else
+                      ReadyAnnouncer(self, self.hot, topics.EXCITATION_ID))
         self.get_logger().info(f"excitation {', '.join(s.text for s in self.specs)} on "
                                f"{self.pub.topic_name}, {'active' if start else 'inactive'}")
         self.hot.start()

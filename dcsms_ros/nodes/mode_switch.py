@@ -90,7 +90,7 @@ class ModeSwitchNode(GraphNode, Hosted):
                                               read_only=False, lo=0.01, hi=60.0)
         self.trip_enabled = declare_local(self, "trip_enabled", True, "Watch the stage "
                                           "velocities and latch Passive on instability")
-        self.guard = StabilityGuard(self, listen=False)
+        self.guard = StabilityGuard(self, listen=False, late=not self.lockstep)
         self.guard.flat, self.guard.mode = dict(self.params.flat), self.mode
         # the initial mode passes the guard a switch passes: nothing unstable runs at start
         refused = self.guard.refuse_mode(self.mode, cfg)

@@ -6,7 +6,9 @@ out first (the control path waits for them), then the previous sample's applied 
 clock and the true velocities; observer topics nobody subscribes to are not serialized at all.
 
 Handshake: sample 0 is published only once every force topic has a publisher, the raw topic a
-subscriber, with ``trip_gate`` mode_switch's trip topics are connected, each topic in
+subscriber, in real time the decoupling and every controller announced that DDS matched their
+ends and the plant's force readers matched their writers (:mod:`dcsms_ros.ros.readiness`),
+with ``trip_gate`` mode_switch's trip topics are connected, each topic in
 ``wait_for_subscribers`` has a subscriber outside the graph (a recorder, a test probe, or the
 ``/diagnostics`` reader of ``dcsms up`` that must hear the run end), and the plant's own
 writers matched every reader, then :data:`SETTLE_S` more; or after
@@ -43,6 +45,7 @@ from dcsms_ros.ros.intraprocess import SamplePublisher
 from dcsms_ros.ros.logthrottle import Throttled
 from dcsms_ros.ros.msgs import sample_ns, to_stamp
 from dcsms_ros.ros.params import declare_observed
+from dcsms_ros.ros.readiness import DECOUPLING, ReadySet
 from dcsms_ros.ros.reports import Reports, Status
 
 #: Seconds the handshake waits after the graph looks connected, so DDS endpoints match too.
@@ -115,6 +118,8 @@ class PlantIO:
         self.achieved_hz = 0.0
         #: 0-based stage the excitation's frame_id names (None: not known yet, or not a stage)
         self.exc_stage: int | None = None
+        #: real time: who announced that DDS matched its ends (lockstep retransmits instead)
+        self.ready = None if node.lockstep else ReadySet(node, [DECOUPLING, *node.controllers])
 
     # -- handshake ---------------------------------------------------------------------------
     def _missing(self) -> list[str]:
@@ -126,6 +131,13 @@ class PlantIO:
                      End(names.trip_check, False, "mode_switch's trip checkpoints")]
         out = missing_ends(nd, ends)
         out += [f"observer of {t}" for t in self.observed if not outside_graph(nd, t)]
+        if self.ready is not None:
+            # a reader drops the samples of a writer it has not matched, whatever the writer's
+            # own count says: each end of the loop confirms from its side (ros/readiness.py)
+            out += [f"{r}'s DDS matches" for r in self.ready.missing([DECOUPLING,
+                                                                      *nd.controllers])]
+            out += [f"the plant's reader of {t}" for t in nd.hot.unmatched(
+                [names.force(c) for c in nd.controllers])]
         own = [self.pub_raw, self.pub_applied, *self.pub_truth]
         # a supervisor (`dcsms up`) must hear the end
         own += [p for p in (self.reports.pub, self.pub_finished) if p.topic_name in self.observed]

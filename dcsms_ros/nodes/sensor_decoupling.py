@@ -40,6 +40,7 @@ from dcsms_ros.ros.params import (
     declare_observed,
     declare_schedule,
 )
+from dcsms_ros.ros.readiness import DECOUPLING, ReadyAnnouncer
 from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.runtime import main_for
 
@@ -87,6 +88,8 @@ class SensorDecouplingNode(GraphNode, Hosted):
         self.lockstep = lockstep
         self._log_nonfinite = Throttled(self.get_logger(), 2.0)
         self.housekeeping(1.0, self._report)
+        # real time: the plant starts once DDS matched this node's ends (lockstep retransmits)
+        self.ready = None if lockstep else ReadyAnnouncer(self, self.hot, DECOUPLING)
         self.hot.start()
 
     def _channels(self, key: tuple[str, ...], v: np.ndarray) -> np.ndarray:

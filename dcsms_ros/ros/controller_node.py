@@ -57,6 +57,7 @@ from dcsms_ros.ros.params import (
     declare_observed,
     declare_schedule,
 )
+from dcsms_ros.ros.readiness import ReadyAnnouncer
 from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.stability import StabilityGuard
 
@@ -141,6 +142,8 @@ class ControllerNode(GraphNode, Hosted):
         elif not self.lockstep:
             steady_timer(self, max(self.watchdog.timeout_s / 4.0, 1e-3), self._watchdog_locked)
         self.housekeeping(1.0, self._report)
+        # real time: the plant starts once DDS matched this node's ends (lockstep retransmits)
+        self.ready = None if self.lockstep else ReadyAnnouncer(self, self.hot, cid)
         self.get_logger().info(f"{cid}: input {topics.LOCAL.velocity(body)}, output "
                                f"{topics.LOCAL.force(cid)}, "
                                f"{'enabled' if enabled else 'disabled'}")

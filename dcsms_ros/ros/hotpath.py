@@ -32,7 +32,7 @@ be created detached and emptied in batches by :meth:`HotPath.drain`.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from typing import Any
 
 from rclpy.callback_groups import CallbackGroup
@@ -78,6 +78,10 @@ class HotPath:
         self.on = enabled()
         self._group = DetachedGroup()
         self.subs: list[tuple[Subscription, Callable[[Any], None]]] = []
+        #: every reader (subscribed or detached) and per-sample writer of the path, for
+        #: :meth:`unmatched` and the readiness announcement (:mod:`.readiness`)
+        self.readers: list[Subscription] = []
+        self.writers: list[SamplePublisher] = []
         self._tick: Callable[[], float | None] | None = None
         self.loop: HotLoop | None = None
         self._own = False
@@ -138,8 +142,11 @@ class HotPath:
         node that must read every sample can answer only the newest."""
         each = handler if flush is None else _then(handler, flush)
         if not self.on:
-            return self.node.create_subscription(msg_type, topic, each, qos, raw=raw)
+            plain = self.node.create_subscription(msg_type, topic, each, qos, raw=raw)
+            self.readers.append(plain)
+            return plain
         sub = self._reader(msg_type, topic, handler, qos, raw)
+        self.readers.append(sub)
         self.subs.append((sub, handler))
         self._flush[sub] = flush
         if self.bus is not None and raw:
@@ -179,13 +186,29 @@ class HotPath:
         """A per-sample publisher (serialized messages): composed, a :class:`BusPublisher`
         (in-process delivery, DDS only for remote readers); else a :class:`DirectPublisher`."""
         pub = self.node.create_publisher(msg_type, topic, qos)
-        return DirectPublisher(pub) if self.bus is None else BusPublisher(pub, self.bus)
+        out = DirectPublisher(pub) if self.bus is None else BusPublisher(pub, self.bus)
+        self.writers.append(out)
+        return out
 
     def served_from_dds(self, sub: Subscription) -> bool:
         """True if ``sub``'s messages come from DDS: no in-process writer of its topic, or
         it takes message objects (the bus carries serialized ones; such a reader is not
         counted as the process's own, so the writer publishes on DDS for it)."""
         return self.bus is None or not sub.raw or not self.bus.has_publisher(sub.topic_name)
+
+    def unmatched(self, wanted: Collection[str] | None = None) -> list[str]:
+        """Topics (those in ``wanted``, default every one) of the path's readers that take
+        from DDS and whose reader has matched no writer yet; a reader served in process is
+        matched. The reader's own count: a writer may have matched it before it matched the
+        writer, and until it does it drops the writer's samples."""
+        out: list[str] = []
+        for asked in self.readers:
+            sub = self._replaced.get(asked, asked)
+            if wanted is not None and sub.topic_name not in wanted:
+                continue
+            if self.served_from_dds(sub) and sub.get_publisher_count() == 0:
+                out.append(sub.topic_name)
+        return out
 
     def resolve(self) -> list[Subscription]:
         """Choose the subscriptions :meth:`serve` takes from (those of topics without an
@@ -209,6 +232,7 @@ class HotPath:
                  raw: bool = False) -> Subscription:
         """A subscription nobody waits on; empty it with :meth:`take` or :meth:`drain_timed`."""
         sub = self._reader(msg_type, topic, lambda m: None, qos, raw)
+        self.readers.append(sub)
         if self.bus is not None and raw:
             box = self._local(sub.topic_name, None)
             assert isinstance(box, Inbox)

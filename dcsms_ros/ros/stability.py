@@ -13,6 +13,14 @@ changes). Until a controller has heard both it cannot judge and lets the change 
 changes made on two nodes at the same moment are each judged without the other. The
 instability trip stays the last line of defence (``allow_unstable`` true: the guard only
 logs).
+
+In real time mode_switch's guard (its initial mode, a switch, a change of its parameters,
+``control.input_timeout_s`` among them) also refuses a mode that a force as late as the plant
+still applies it (``control.input_timeout_s``) would destabilise
+(:func:`dcsms_ros.core.margins.late_force_reason`: one controller late, or all). The
+controllers' own vet does not: it runs under their hot lock, and the delay margins of the
+TEM's model take ~0.2 s (table1 ~0.04 s), a stall of the control path; ``dcsms model check``
+and the next switch judge that.
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ from std_msgs.msg import String
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig, config_from_flat
 from dcsms_ros.core.loop_stability import unstable_reason
+from dcsms_ros.core.margins import late_force_reason
 from dcsms_ros.core.modes import Mode, parse_mode
 from dcsms_ros.core.params_file import parse_params_text
 from dcsms_ros.errors import DcsmsError
@@ -43,6 +52,9 @@ class StabilityGuard:
     listen : bool
         Learn the configuration and the mode from ``<ns>/config`` and ``<ns>/mode``
         (controllers); False: the owner sets :attr:`flat` and :attr:`mode` (mode_switch).
+    late : bool
+        Also refuse a mode that forces ``control.input_timeout_s`` late destabilise (real
+        time).
 
     Attributes
     ----------
@@ -54,8 +66,9 @@ class StabilityGuard:
         The active mode.
     """
 
-    def __init__(self, node: Node, listen: bool) -> None:
+    def __init__(self, node: Node, listen: bool, late: bool = False) -> None:
         self.node = node
+        self.late = late
         self.allow = bool(declare_local(node, "allow_unstable", False, "Accept switches and "
                                         "parameter changes the model calls unstable (the "
                                         "instability trip is then the last line of defence)"))
@@ -91,6 +104,8 @@ class StabilityGuard:
         """The reason ``mode`` must not run with ``cfg`` (default :meth:`config`), or None."""
         cfg = cfg if cfg is not None else self.config()
         reason = unstable_reason(cfg, mode) if cfg is not None else None
+        if reason is None and self.late and cfg is not None:
+            reason = late_force_reason(cfg, mode)
         if reason is None:
             return None
         if self.allow:

@@ -9,6 +9,7 @@ import pytest
 from dcsms_ros.cli import main
 
 UNSTABLE = Path(__file__).resolve().parents[1] / "fixtures" / "tem_unstable.yaml"
+TABLE1 = Path(__file__).resolve().parents[2] / "config" / "table1.yaml"
 
 
 @pytest.mark.parametrize("extra, message", [
@@ -38,4 +39,19 @@ def test_an_unstable_initial_mode_is_refused(command: list[str], tmp_path,
     assert err.count("\n") == 1 and err.startswith("dcsms: error: --mode DFBC: DFBC is "
                                                    "unstable"), err
     assert "+0.0576 +0.4249j Hz" in err and "--allow-unstable" in err
+    assert not out.exists()
+
+
+def test_a_real_time_start_that_late_forces_destabilise_is_refused(
+        tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Real time applies a force up to control.input_timeout_s late: table1's DFBC tolerates
+    16.5 ms with both feedback controllers late, so a 20 ms timeout is refused at start (one
+    line naming the margin, exit 2, nothing recorded); 10 ms (the preset) is not."""
+    out = tmp_path / "bag"
+    assert main(["up", "--realtime", "--mode", "DFBC", "--config", str(TABLE1), "--set",
+                 "control.input_timeout_s=0.02", "--record", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(
+        "dcsms: error: --mode DFBC: DFBC goes unstable with forces 20 ms late"), err
+    assert "delay margin of all is 16.5 ms" in err and "--allow-unstable" in err
     assert not out.exists()

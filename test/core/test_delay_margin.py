@@ -12,7 +12,7 @@ import pytest
 from dcsms_ros.core.check import check_mode
 from dcsms_ros.core.config import load_config, with_overrides
 from dcsms_ros.core.engine import simulate
-from dcsms_ros.core.margins import OpenLoops, delay_margin, delay_margins
+from dcsms_ros.core.margins import OpenLoops, delay_margin, delay_margins, late_force_reason
 from dcsms_ros.core.modes import Mode
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -126,3 +126,21 @@ def test_check_fails_a_timeout_beyond_the_margin():
     bad = check_mode(with_overrides(cfg, {"control.input_timeout_s": 0.011}), Mode.FBC)
     assert not bad.ok
     assert any("delay margin of fb_stage1" in f and "10.7 ms" in f for f in bad.failures)
+
+
+@pytest.mark.parametrize("config, mode", [("table1.yaml", Mode.DFBC),
+                                          ("tem_paper_fit.yaml", Mode.DFBC_FFC)])
+def test_late_force_reason_refuses_exactly_beyond_the_smallest_margin(config, mode):
+    """The real-time guard's verdict: forces 1 % less late than the smallest delay margin of
+    one controller or all together (the margins the engine test above checks against the
+    batch engine) pass; 1 % more late is refused, naming that margin."""
+    cfg = load_config(ROOT / "config" / config)
+    worst = min(delay_margins(cfg, mode), key=lambda d: d.delay_s)
+    assert late_force_reason(cfg, mode) is None  # the presets' timeouts are inside
+    assert late_force_reason(cfg, mode, 0.99 * worst.delay_s) is None
+    reason = late_force_reason(cfg, mode, 1.01 * worst.delay_s)
+    assert reason is not None and f"delay margin of {worst.name} is " in reason
+    assert f"{worst.delay_s * 1e3:.1f} ms" in reason and mode.label in reason
+    slow = with_overrides(cfg, {"control.input_timeout_s": round(1.01 * worst.delay_s, 4)})
+    assert late_force_reason(slow, mode) is not None
+    assert late_force_reason(cfg, Mode.FFC) is None  # no loop closed: nothing to be late for

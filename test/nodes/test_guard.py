@@ -128,3 +128,26 @@ def test_mode_switch_refuses_an_unstable_initial_mode(domain) -> None:
         out = allowed.communicate(timeout=30)[0]
     assert allowed.returncode == 0, out
     assert "allowed (allow_unstable)" in out and "mode DFBC;" in out, out
+
+
+def test_real_time_mode_switch_refuses_an_initial_mode_late_forces_destabilise(domain) -> None:
+    """In real time a force is applied up to control.input_timeout_s late: with 20 ms table1's
+    DFBC (16.5 ms with both loops late) is refused at start, one line, exit 2; in lockstep
+    (no late force) the same parameters start."""
+    node = [sys.executable, "-m", "dcsms_ros.nodes.mode_switch", "--ros-args", "--params-file",
+            str(REPO / "config" / "table1.yaml"), "-p", "initial_mode:=DFBC", "-p",
+            "control.input_timeout_s:=0.02"]
+    refused = subprocess.run(node, capture_output=True, text=True, timeout=60, check=False)
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    assert refused.stderr.count("\n") == 1 and refused.stderr.startswith(
+        "dcsms: error: node mode_switch: initial_mode: DFBC goes unstable with forces 20 ms "
+        "late"), refused.stderr
+    lockstep = subprocess.Popen([*node, "-p", "schedule:=lockstep"], stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True)
+    try:
+        time.sleep(4.0)  # started and running (it exits at once when it refuses)
+        assert lockstep.poll() is None
+    finally:
+        lockstep.send_signal(signal.SIGINT)
+        out = lockstep.communicate(timeout=30)[0]
+    assert lockstep.returncode == 0, out
