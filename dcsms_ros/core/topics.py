@@ -150,6 +150,12 @@ class Names:
         since the epoch); a new value under the same name is a restarted process."""
         return self._join(f"{controller}/boot")
 
+    def heard(self, controller: str) -> str:
+        """std_msgs/Int64, transient local depth 1, plant -> controller (real time): the
+        ``boot`` of the controller process whose force the plant has taken; a (re)started
+        controller fades in once it reads its own (:mod:`dcsms_ros.ros.heard`)."""
+        return self._join(f"plant/heard/{controller}")
+
     def set_parameters(self, node: str) -> str:
         """rcl_interfaces/SetParameters of node ``node`` of the graph."""
         return self._join(f"{node}/set_parameters")

@@ -36,6 +36,7 @@ from std_msgs.msg import Header
 from dcsms_ros.cdr import WRENCH_STAMPED, read_frame, read_header, read_stamped
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
+from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.core.trip import check_samples
 from dcsms_ros.nodes import plant_simulator_io as plant_io
@@ -46,6 +47,7 @@ from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.guard import FORCE_LIMIT_FACTOR, InputGuard
+from dcsms_ros.ros.heard import HeardEcho
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
@@ -87,6 +89,9 @@ class PlantSimulatorNode(GraphNode, Hosted):
         self._zero = np.zeros(self.dof)
         self.pacer = Pacer(self.rate)
         self.held = HeldInputs(self.controllers, cfg.control.input_timeout_s, self._zero)
+        # real time: a (re)started controller fades in once it hears that its forces arrive
+        self.heard = None if self.lockstep else HeardEcho(
+            self, [c for c in self.controllers if ControllerId.is_valid(c)])
         # forces are taken by the hot loop (hotpath.py); the executor keeps handshake,
         # lockstep timeouts/retransmissions and reports, under the same lock
         self.hot = HotPath(self)
@@ -237,6 +242,8 @@ class PlantSimulatorNode(GraphNode, Hosted):
         now_ns = self.io.latency(cid, stamp, rx_ns)
         if not self.lockstep:
             self.held.put(cid, w, self.io.sample_time(stamp, now_ns) * 1e-9)
+            if self.heard is not None:
+                self.heard.took(cid)
             return
         if cid in self.barrier.absent:
             self.get_logger().info(f"{cid} is back")

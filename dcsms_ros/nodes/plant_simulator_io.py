@@ -319,6 +319,7 @@ class PlantIO:
                   "lockstep_timeouts": sum(b.faults.values()), "retransmits": b.retransmits,
                   "stale_events": sum(nd.held.stale_events.values()),
                   "stale_samples": sum(nd.held.stale_samples.values()),
+                  "controllers": len(nd.controllers),
                   "latency_p50_ms": f"{self.latency_hist.quantile(0.5) * 1e3:.4f}",
                   "latency_p99_ms": f"{self.latency_hist.quantile(0.99) * 1e3:.4f}",
                   "overruns": nd.pacer.overruns, "late_steps": nd.pacer.late,

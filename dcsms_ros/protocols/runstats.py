@@ -57,6 +57,9 @@ class LatencyHistogram:
 #: Late fraction of a real-time run above which its summary warns (the issue's target for one
 #: process per node).
 LATE_WARN = 0.01
+#: Fraction of the controllers' forces counted as zero (stale) above which a real-time summary
+#: warns: the loop was open that often.
+STALE_WARN = 0.01
 
 
 @dataclass(frozen=True)
@@ -89,6 +92,9 @@ class RunSummary:
         recorder's loss.
     lockstep : bool
         The run's schedule (what ``samples_x_streams`` means).
+    forces : int
+        Samples x controllers the plant takes a force from (0: not known), what ``stale``
+        is a part of.
     """
 
     samples: int
@@ -100,6 +106,7 @@ class RunSummary:
     samples_x_streams: int | None = None
     lockstep: bool = True
     published: int | None = None
+    forces: int = 0
 
     def line(self) -> str:
         """``samples N, late N (x %), stale forces N, control latency p50/p99 X/Y ms, ...``."""
@@ -118,15 +125,25 @@ class RunSummary:
                 f"{_ms(self.latency_p99_s)} ms, {rec}")
 
     def warning(self) -> str | None:
-        """A warning when more than :data:`LATE_WARN` of the samples missed their deadline in
-        real time (None otherwise): the loop that ran then had more delay than the one
-        configured, so its spectra are not the configuration's."""
-        if self.lockstep or not self.samples or self.late <= LATE_WARN * self.samples:
+        """A warning when, in real time, more than :data:`LATE_WARN` of the samples missed
+        their deadline (the loop that ran had more delay than the one configured, so its
+        spectra are not the configuration's) or more than :data:`STALE_WARN` of the forces
+        were stale (the loop was open that often); None otherwise."""
+        if self.lockstep or not self.samples:
             return None
-        return (f"{100.0 * self.late / self.samples:.3g} % of the samples missed their "
-                f"deadline: this machine did not keep the graph in real time, and the loop "
-                f"that ran had more delay than the configured one (--lockstep runs it at any "
-                f"speed)")
+        out = []
+        if self.late > LATE_WARN * self.samples:
+            out.append(f"{100.0 * self.late / self.samples:.3g} % of the samples missed their "
+                       f"deadline: this machine did not keep the graph in real time, and the "
+                       f"loop that ran had more delay than the configured one")
+        if self.forces and self.stale > STALE_WARN * self.forces:
+            out.append(f"{100.0 * self.stale / self.forces:.3g} % of the controllers' forces "
+                       f"came after control.input_timeout_s and counted as zero: the loop was "
+                       f"open that often")
+        if not out:
+            return None
+        return "; ".join(out) + (" (--composed runs the control path in one process, "
+                                 "--lockstep at any speed)")
 
     def to_dict(self) -> dict[str, Any]:
         """The fields, and the late fraction."""
@@ -171,6 +188,7 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
         if present and published and all(s in published for s in present):
             sent = sum(published[s] for s in present)
     return RunSummary(samples=samples, late=late, stale=int(plant.get("stale_samples", "0")),
+                      forces=samples * int(plant.get("controllers", "0")),
                       latency_p50_s=num("latency_p50_ms") * 1e-3,
                       latency_p99_s=num("latency_p99_ms") * 1e-3,
                       recorded=recorded, samples_x_streams=scale,
@@ -178,4 +196,4 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
                       published=sent)
 
 
-__all__ = ["LATE_WARN", "LatencyHistogram", "RunSummary", "summarize"]
+__all__ = ["LATE_WARN", "STALE_WARN", "LatencyHistogram", "RunSummary", "summarize"]

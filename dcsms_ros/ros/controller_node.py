@@ -9,9 +9,10 @@ is dropped (:class:`~dcsms_ros.protocols.responder.Answerer`). ``~/enable``
 (std_srvs/SetBool) fades the loop in or out over ``control.fade_time_s``; parameter ``enabled``
 starts it at full gain in lockstep, as the batch engine starts the controllers of its initial
 mode, and fades it in from zero in real time (a restarted controller rejoins a running plant
-without a kick): the loop starts, primed, only once the plant's reader matched the force
-publisher (zero force until then). A tuning change the model calls unstable in the active mode
-is rejected (:mod:`.stability`).
+without a kick): the loop starts, primed, only once the plant has taken one of this process's
+forces (zero force until then; :mod:`.heard`), or, with another actuator node as
+``force_reader``, once that node's reader matched the force publisher. A tuning change the
+model calls unstable in the active mode is rejected (:mod:`.stability`).
 
 Real time only: a :class:`~dcsms_ros.protocols.pacer.Watchdog` publishes zero force while no
 input arrived for ``control.input_timeout_s`` (steady wall clock; on the hot thread, whose wait
@@ -46,6 +47,7 @@ from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.connectivity import has_reader, writer_matched
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
+from dcsms_ros.ros.heard import HeardBy
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import SamplePublisher
@@ -60,6 +62,9 @@ from dcsms_ros.ros.params import (
 from dcsms_ros.ros.readiness import ReadyAnnouncer
 from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.stability import StabilityGuard
+
+#: The node name of the simulated plant, the default ``force_reader`` (it echoes what it heard).
+PLANT = "plant_simulator"
 
 
 class ControllerNode(GraphNode, Hosted):
@@ -92,9 +97,11 @@ class ControllerNode(GraphNode, Hosted):
         self.params.vet = self.guard_stable.vet
         self.lockstep = declare_schedule(self) == "lockstep"
         # the actuator side: the plant in simulation, the rig's actuator driver on hardware
-        self.force_reader = declare_local(self, "force_reader", "plant_simulator", "Real "
-                                          "time: node whose reader of the force topic must be "
-                                          "matched before the loop starts (empty: any reader)")
+        self.force_reader = declare_local(self, "force_reader", PLANT, "Real time: the "
+                                          "actuator node; the plant (default) says when it "
+                                          "took a force, another node's reader of the force "
+                                          "topic must be matched before the loop starts "
+                                          "(empty: any reader)")
         enabled = declare_local(self, "enabled", False, "Start enabled at full gain (no fade), "
                                 "as the batch engine starts its initial mode")
         self.observed = declare_observed(self)
@@ -131,6 +138,9 @@ class ControllerNode(GraphNode, Hosted):
         self.boot_ns = time.time_ns()  # tells mode_switch a restarted process from the old one
         self.pub_boot = self.create_publisher(Int64, topics.LOCAL.boot(cid), qos.latched())
         self.pub_boot.publish(Int64(data=self.boot_ns))
+        # real time: the plant echoes this boot once it took a force of this process
+        self.heard = (HeardBy(self, cid, self.boot_ns)
+                      if not self.lockstep and self.force_reader == PLANT else None)
         # real time: the loop is stepped (its fade runs) only once its output reaches the plant
         self._linked = self.lockstep
         self._link_check_ns = -1
@@ -187,10 +197,14 @@ class ControllerNode(GraphNode, Hosted):
             self._seen = seen
 
     def _reaches_actuators(self, ns: int) -> bool:
-        """Real time: True once the ``force_reader`` node's reader and every other reader of
-        the force topic this node sees matched the publisher (checked every 10 ms of stamps;
-        an incompatible reader holds it MATCH_TIMEOUT_S at most). Before that the fade would
-        run unheard: a restarted controller's discovery can take a second."""
+        """Real time: True once the plant echoed this process's boot (it took one of its
+        forces); with another ``force_reader``, once that node's reader and every other reader
+        of the force topic this node sees matched the publisher (checked every 10 ms of
+        stamps; an incompatible reader holds it MATCH_TIMEOUT_S at most). Before that the
+        fade would run unheard: a restarted controller's discovery can take a second, and a
+        writer's match does not say that the reader matched it."""
+        if self.heard is not None:
+            return self.heard.heard
         if ns - self._link_check_ns < 10_000_000 or self.pub.get_subscription_count() == 0:
             return False
         self._link_check_ns = ns

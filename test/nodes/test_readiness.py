@@ -9,15 +9,13 @@ import time
 import pytest
 import rclpy
 from geometry_msgs.msg import TwistStamped, WrenchStamped
-from node_helpers import executor_for, overrides, spin_until
+from node_helpers import executor_for, overrides, realtime_plant, spin_until
 from rclpy.parameter import Parameter
-from rosmsgs import stamp_ns
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
 from dcsms_ros.core import topics
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
-from dcsms_ros.nodes.plant_simulator import PlantSimulatorNode
 from dcsms_ros.nodes.sensor_decoupling import SensorDecouplingNode
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.readiness import DECOUPLING, ReadySet
@@ -32,14 +30,7 @@ def test_the_plant_waits_for_every_announcement_before_sample_0(ctx, cfg):
     force writer) but announces nothing: no sample for 2 s (before, the plant started on its
     writers' match, ~0.3 s here). Announcing the decoupling alone is not enough; with
     fb_stage1 announced too the plant steps."""
-    plant = PlantSimulatorNode(context=ctx, parameter_overrides=overrides(
-        cfg, schedule="realtime", controllers=["fb_stage1"], handshake_timeout_s=60.0,
-        duration_s=0.0))
-    probe = rclpy.create_node("ready_probe", context=ctx)
-    raw: list[int] = []
-    probe.create_subscription(JointState, topics.SENSORS_RAW,
-                              lambda m: raw.append(stamp_ns(m.header.stamp)),
-                              qos.stream_pub(False))  # a deep reader: the first sample kept
+    plant, probe, raw = realtime_plant(ctx, cfg, "ready_probe", 60.0, deep=True)
     force = probe.create_publisher(WrenchStamped, topics.force_topic("fb_stage1"),
                                    qos.stream_pub(False))
     ready = probe.create_publisher(Bool, topics.DEFAULT.ready(DECOUPLING), qos.latched())

@@ -81,3 +81,24 @@ def test_a_real_time_run_with_more_than_one_percent_late_warns(late: int, schedu
     if warns:
         assert w is not None and w.startswith("1 % of the samples missed their deadline")
 
+
+@pytest.mark.parametrize(("stale", "late", "schedule", "says"), [
+    (1200, 0, "realtime", None), (1201, 0, "realtime", ["1 % of the controllers' forces"]),
+    (60000, 4000, "realtime", ["10 % of the samples", "50 % of the controllers' forces"]),
+    (60000, 0, "lockstep", None)])
+def test_a_real_time_run_with_more_than_one_percent_stale_forces_warns(
+        stale: int, late: int, schedule: str, says: list[str] | None) -> None:
+    """Stale forces are part of samples x controllers (3 here: 120,000): above 1 % of them a
+    real-time summary warns that the loop was open that often, with the late samples in the
+    same line when both are above their bound."""
+    s = summarize({"sample": "40000", "late_steps": str(late), "schedule": schedule,
+                   "stale_samples": str(stale), "controllers": "3"}, None, [])
+    assert s.forces == 120000
+    w = s.warning()
+    if says is None:
+        assert w is None
+        return
+    assert w is not None and w.count("\n") == 0 and "--composed" in w
+    assert [w.index(x) for x in says] == sorted(w.index(x) for x in says)
+    assert ("missed their deadline" in w) == (late > 0)
+
