@@ -267,18 +267,19 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     if in_process and graph[0].proc is not None and graph[0].proc.returncode not in (0, None):
         status = status or 1
     if plant:
-        report_summary(spec, plant, how.record, how.log_dir)
+        report_summary(spec, plant, how.record, how.log_dir, how.composed)
     return status
 
 
 def report_summary(spec: GraphSpec, plant: dict[str, str], bag: Path | None,
-                   log_dir: Path) -> RunSummary:
-    """Print the run's summary line and write it as ``summary.json`` in ``log_dir``."""
+                   log_dir: Path, composed: bool = False) -> RunSummary:
+    """Print the run's summary line (and a warning, whose hint depends on ``composed``) and
+    write it as ``summary.json`` in ``log_dir``."""
     counts = bag_counts(bag) if bag is not None else None
     published = bag_published(bag) if bag is not None else None
     summary = summarize(plant, counts, spec.stream_topics(), published)
     print(f"dcsms up: summary: {summary.line()}", flush=True)
-    warning = summary.warning()
+    warning = summary.warning(composed)
     if warning:
         print(f"dcsms up: warning: {warning}", file=sys.stderr, flush=True)
     (log_dir / "summary.json").write_text(json.dumps(jsonable(summary.to_dict()), indent=1,

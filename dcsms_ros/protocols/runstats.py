@@ -124,11 +124,12 @@ class RunSummary:
                 f"{self.stale}, control latency p50/p99 {_ms(self.latency_p50_s)}/"
                 f"{_ms(self.latency_p99_s)} ms, {rec}")
 
-    def warning(self) -> str | None:
+    def warning(self, composed: bool = False) -> str | None:
         """A warning when, in real time, more than :data:`LATE_WARN` of the samples missed
         their deadline (the loop that ran had more delay than the one configured, so its
         spectra are not the configuration's) or more than :data:`STALE_WARN` of the forces
-        were stale (the loop was open that often); None otherwise."""
+        were stale (the loop was open that often); None otherwise. ``composed``: the run was
+        composed already (the hint names only lockstep)."""
         if self.lockstep or not self.samples:
             return None
         out = []
@@ -142,8 +143,9 @@ class RunSummary:
                        f"open that often")
         if not out:
             return None
-        return "; ".join(out) + (" (--composed runs the control path in one process, "
-                                 "--lockstep at any speed)")
+        hint = ("--lockstep runs it at any speed" if composed else
+                "--composed runs the control path in one process, --lockstep at any speed")
+        return f"{'; '.join(out)} ({hint})"
 
     def to_dict(self) -> dict[str, Any]:
         """The fields, and the late fraction."""

@@ -99,6 +99,7 @@ def test_a_real_time_run_with_more_than_one_percent_stale_forces_warns(
         assert w is None
         return
     assert w is not None and w.count("\n") == 0 and "--composed" in w
+    assert "--composed" not in (s.warning(composed=True) or "")  # already composed
     assert [w.index(x) for x in says] == sorted(w.index(x) for x in says)
     assert ("missed their deadline" in w) == (late > 0)
 
