@@ -41,7 +41,7 @@ from dcsms_ros.ros.context import ros_context, spin_until
 #: Seconds between status lines on a terminal, and when the output is a file or a pipe.
 STATUS_PERIOD_TTY = 0.5
 STATUS_PERIOD_PIPE = 5.0
-PLANT = "plant_simulator"
+PLANT = topics.PLANT_ID
 
 
 class GraphMonitor:

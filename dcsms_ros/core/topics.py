@@ -185,6 +185,9 @@ LOCAL = Names(None)
 #: Names of the default graph.
 DEFAULT = Names(NAMESPACE)
 
+#: Node name of the plant simulator (the actuator node a controller waits for by default).
+PLANT_ID = "plant_simulator"
+
 #: Id of the excitation source (``nodes/excitation.py``): it publishes on :meth:`Names.force` of
 #: it a wrench (N, N*m) on the stage named by its ``frame_id``, which the plant sums with the
 #: controllers' before allocation.

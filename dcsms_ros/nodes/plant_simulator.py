@@ -63,7 +63,7 @@ class PlantSimulatorNode(GraphNode, Hosted):
 
     hot: HotPath  # every instance has one (Hosted declares it optional)
 
-    def __init__(self, node_name: str = "plant_simulator", **kwargs: Any) -> None:
+    def __init__(self, node_name: str = topics.PLANT_ID, **kwargs: Any) -> None:
         kwargs.setdefault("namespace", topics.NAMESPACE)
         super().__init__(node_name, **kwargs)
         self.params = NodeConfig(self, SELECTORS["plant_simulator"], self._on_change)

@@ -134,8 +134,7 @@ class PlantIO:
         if self.ready is not None:
             # a reader drops the samples of a writer it has not matched, whatever the writer's
             # own count says: each end of the loop confirms from its side (ros/readiness.py)
-            out += [f"{r}'s DDS matches" for r in self.ready.missing([DECOUPLING,
-                                                                      *nd.controllers])]
+            out += [f"{r}'s DDS matches" for r in self.ready.missing()]
             out += [f"the plant's reader of {t}" for t in nd.hot.unmatched(
                 [names.force(c) for c in nd.controllers])]
         own = [self.pub_raw, self.pub_applied, *self.pub_truth]

@@ -63,9 +63,6 @@ from dcsms_ros.ros.readiness import ReadyAnnouncer
 from dcsms_ros.ros.reports import Reports, Status
 from dcsms_ros.ros.stability import StabilityGuard
 
-#: The node name of the simulated plant, the default ``force_reader`` (it echoes what it heard).
-PLANT = "plant_simulator"
-
 
 class ControllerNode(GraphNode, Hosted):
     """Base of :class:`FeedbackControllerNode` and :class:`FeedforwardControllerNode`."""
@@ -97,7 +94,7 @@ class ControllerNode(GraphNode, Hosted):
         self.params.vet = self.guard_stable.vet
         self.lockstep = declare_schedule(self) == "lockstep"
         # the actuator side: the plant in simulation, the rig's actuator driver on hardware
-        self.force_reader = declare_local(self, "force_reader", PLANT, "Real time: the "
+        self.force_reader = declare_local(self, "force_reader", topics.PLANT_ID, "Real time: the "
                                           "actuator node; the plant (default) says when it "
                                           "took a force, another node's reader of the force "
                                           "topic must be matched before the loop starts "
@@ -140,7 +137,7 @@ class ControllerNode(GraphNode, Hosted):
         self.pub_boot.publish(Int64(data=self.boot_ns))
         # real time: the plant echoes this boot once it took a force of this process
         self.heard = (HeardBy(self, cid, self.boot_ns)
-                      if not self.lockstep and self.force_reader == PLANT else None)
+                      if not self.lockstep and self.force_reader == topics.PLANT_ID else None)
         # real time: the loop is stepped (its fade runs) only once its output reaches the plant
         self._linked = self.lockstep
         self._link_check_ns = -1

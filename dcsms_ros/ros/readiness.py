@@ -80,21 +80,22 @@ class ReadySet:
     node : Node
         The node whose executor delivers the announcements.
     roles : iterable of str
-        The roles to listen to.
+        The roles to wait for.
     """
 
     def __init__(self, node: Node, roles: Iterable[str]) -> None:
+        self.wanted = list(roles)
         self.roles: set[str] = set()
         self.subs = [node.create_subscription(Bool, topics.LOCAL.ready(r), partial(self._on, r),
-                                              qos.latched()) for r in roles]
+                                              qos.latched()) for r in self.wanted]
 
     def _on(self, role: str, msg: Bool) -> None:
         if msg.data:
             self.roles.add(role)
 
-    def missing(self, roles: Iterable[str]) -> list[str]:
-        """Those of ``roles`` not announced yet, in order."""
-        return [r for r in roles if r not in self.roles]
+    def missing(self) -> list[str]:
+        """The roles not announced yet, in order."""
+        return [r for r in self.wanted if r not in self.roles]
 
 
 __all__ = ["CHECK_S", "DECOUPLING", "ReadyAnnouncer", "ReadySet"]
