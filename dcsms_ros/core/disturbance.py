@@ -1,8 +1,11 @@
 """Seeded band-limited white-noise disturbances: ground velocity and table forces.
 
-Noise is generated in blocks of :data:`BLOCK` samples from a ``numpy.random.Generator`` and
+Noise is drawn in blocks of :data:`BLOCK` samples from a ``numpy.random.Generator`` and
 served sample by sample, so the sequence depends only on the seed, never on how callers
-consume it (``next()`` per sample or ``block(n)``).
+consume it (``next()`` per sample or ``block(n)``). A block's band-pass runs when its rows are
+first served, :data:`CHUNK` rows at a time for ``next()``: the sections carry their state
+from row to row, so any split gives the same bits, and a real-time plant pays for a block's
+filtering in small pieces instead of in one step every :data:`BLOCK` samples.
 """
 
 from __future__ import annotations
@@ -21,8 +24,14 @@ from dcsms_ros.errors import ConfigError
 
 Array = NDArray[np.float64]
 
-#: Samples generated per refill.
+#: Samples drawn per refill.
 BLOCK = 1024
+#: Rows of a block :meth:`BandNoise.next` band-passes at once. The whole block in the step
+#: that needed it took 1.0 ms (table1) and 2.6 ms (the 6-DOF TEM) of the real-time plant's
+#: step once every 0.512 s at 2 kHz, and the samples after it were late; 32 rows take
+#: ~50-170 us every 32nd sample for ~1-2.5 us more per sample on average (one call per chunk;
+#: docs/performance.md, "A block of noise every 0.512 s").
+CHUNK = 32
 #: Butterworth order of each band edge.
 ORDER = 2
 
@@ -105,13 +114,15 @@ class BandNoise:
                        / math.sqrt(noise_gain(self._sos)))
         self._zi = (None if self._sos is None
                     else np.zeros((self._sos.shape[0], 2, self.channels)))
-        self._buf = np.zeros((0, self.channels))
-        self._k = 0
+        # the block: white noise, its filtered rows (0 .. _done) and their read-only view
+        self._white = self._out = self._view = np.zeros((BLOCK, self.channels))
+        self._done = self._k = BLOCK  # nothing drawn yet: the first sample draws
         if self._sos is not None and warm:
             r = _slowest_pole_radius(self._sos)
             n_warm = 0 if r <= 0.0 else int(math.ceil(math.log(1e-6) / math.log(r)))
-            for _ in range(-(-n_warm // BLOCK)):
+            for _ in range(-(-n_warm // BLOCK)):  # the last warm block is served
                 self._refill()
+                self._filter(BLOCK)
 
     @property
     def sos(self) -> Array | None:
@@ -124,31 +135,45 @@ class BandNoise:
         return np.asarray(self._scale, dtype=np.float64)
 
     def _refill(self) -> None:
-        w = self._rng.standard_normal((BLOCK, self.channels))
+        """Draw the next block's white noise; its rows are filtered when first served."""
+        self._white = self._rng.standard_normal((BLOCK, self.channels))
+        # a new array each block: rows handed out earlier (views) keep their values
+        self._out = np.empty_like(self._white)
+        self._view = self._out.view()
+        self._view.flags.writeable = False
+        self._done = self._k = 0
+
+    def _filter(self, n: int) -> None:
+        """Band-pass and scale the block's rows ``_done .. n``."""
+        lo = self._done
+        w = self._white[lo:n]
         if self._sos is not None and self._zi is not None:
             w, self._zi = self._run(self._sos, w, self._zi)
-        w *= self._scale
-        w.flags.writeable = False  # rows are handed out as views
-        self._buf = w
-        self._k = 0
+        self._out[lo:n] = w * self._scale
+        self._done = n
 
     def next(self) -> Array:
         """The next sample, shape (channels,) (read-only view)."""
-        if self._k >= self._buf.shape[0]:
-            self._refill()
-        row = self._buf[self._k]
-        self._k += 1
-        return row
+        k = self._k
+        if k >= self._done:
+            if k >= BLOCK:
+                self._refill()
+                k = 0
+            self._filter(min(k + CHUNK, BLOCK))
+        self._k = k + 1
+        return self._view[k]
 
     def block(self, n: int) -> Array:
         """The next ``n`` samples, shape (n, channels); same values as ``n`` calls of next()."""
         out = np.empty((n, self.channels))
         i = 0
         while i < n:
-            if self._k >= self._buf.shape[0]:
+            if self._k >= BLOCK:
                 self._refill()
-            m = min(n - i, self._buf.shape[0] - self._k)
-            out[i:i + m] = self._buf[self._k:self._k + m]
+            m = min(n - i, BLOCK - self._k)
+            if self._done < self._k + m:
+                self._filter(self._k + m)
+            out[i:i + m] = self._out[self._k:self._k + m]
             self._k += m
             i += m
         return out
@@ -292,4 +317,4 @@ class Disturbances:
         return g, w
 
 
-__all__ = ["BLOCK", "BandNoise", "Disturbances", "band_sos", "noise_gain"]
+__all__ = ["BLOCK", "CHUNK", "BandNoise", "Disturbances", "band_sos", "noise_gain"]

@@ -8,8 +8,17 @@ from numpy.testing import assert_allclose
 from scipy import signal
 from sixdof_helper import sixdof_config
 
+from dcsms_ros.core import compiledsos
 from dcsms_ros.core.config import load_config
-from dcsms_ros.core.disturbance import BandNoise, Disturbances, band_sos, noise_gain
+from dcsms_ros.core.disturbance import (
+    BLOCK,
+    CHUNK,
+    BandNoise,
+    Disturbances,
+    band_sos,
+    noise_gain,
+)
+from dcsms_ros.core.sosfilter import sosfilt
 from dcsms_ros.errors import ConfigError
 
 FS = 2000.0
@@ -49,6 +58,56 @@ def test_band_noise_block_independent():
     b = BandNoise(1.0, (0.5, 100.0), FS, 2, np.random.default_rng(3))
     parts = [b.block(7), np.array([b.next() for _ in range(1500)]), b.block(1493)]
     assert_allclose(np.vstack(parts), a, rtol=0, atol=0)
+
+
+def _whole_blocks(rms, band, channels, seed, n):
+    """The noise of ``BandNoise(..., warm=False)`` built independently: each block of white
+    noise drawn whole and filtered whole by scipy, the state carried, then scaled."""
+    rng = np.random.default_rng(seed)
+    sos = band_sos(band, FS)
+    zi = np.zeros((sos.shape[0], 2, channels))
+    out = []
+    for _ in range(-(-n // BLOCK)):
+        y, zi = signal.sosfilt(sos, rng.standard_normal((BLOCK, channels)), axis=0, zi=zi)
+        out.append(y * (rms / np.sqrt(noise_gain(sos))))
+    return np.vstack(out)[:n]
+
+
+@pytest.mark.parametrize("run", [sosfilt, compiledsos.sosfilt], ids=["python", "compiled"])
+def test_band_noise_split_keeps_the_bits(run):
+    """Served row by row (the nodes), in odd blocks, or whole (the engine), with the Python
+    or the compiled block filter: the same bits as whole blocks filtered by scipy."""
+    n = 3 * BLOCK + 77
+    want = _whole_blocks(2e-6, (0.5, 100.0), 3, 11, n)
+    rows = BandNoise(2e-6, (0.5, 100.0), FS, 3, np.random.default_rng(11), warm=False,
+                     block_filter=run)
+    got_rows = np.array([rows.next() for _ in range(n)])
+    odd = BandNoise(2e-6, (0.5, 100.0), FS, 3, np.random.default_rng(11), warm=False,
+                    block_filter=run)
+    got_odd = np.vstack([odd.block(m) for m in (5, BLOCK - 5, 1, 700, BLOCK + 323 + 77 + 1,
+                                                BLOCK - 1)])
+    assert_allclose(got_rows, want, rtol=0, atol=0)
+    assert_allclose(got_odd[:n], want, rtol=0, atol=0)
+
+
+def test_band_noise_next_filters_a_chunk_at_a_time():
+    """A sample served by next() filters at most CHUNK rows: a block's filtering is spread
+    over its samples, not paid in the one step that starts it (the real-time plant's)."""
+    sizes: list[int] = []
+
+    def counting(sos, x, zi):
+        sizes.append(x.shape[0])
+        return sosfilt(sos, x, zi)
+
+    bn = BandNoise(1.0, (0.5, 100.0), FS, 2, np.random.default_rng(5), block_filter=counting)
+    warm = len(sizes)
+    assert warm >= 1 and set(sizes) == {BLOCK}  # the warm-up filters whole blocks
+    served = [bn.next().copy() for _ in range(3 * BLOCK)]
+    assert max(sizes[warm:]) == CHUNK
+    # the warm-up's last block is served first; every row after it was filtered once
+    assert sum(sizes[warm:]) == 2 * BLOCK
+    assert not bn.next().flags.writeable  # rows are views of the block
+    assert np.isfinite(served).all()
 
 
 def test_band_noise_rejects_empty_band():
