@@ -13,7 +13,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -135,26 +135,22 @@ def parse_schedule(text: str) -> list[tuple[float, Any]]:
     return sorted(out, key=lambda e: e[0])
 
 
-def model_check_lines(cfg: SystemConfig) -> list[str]:
-    """The model's verdict on every mode: one line per failing mode, or one line saying all six
-    are stable with margins. The verdict is a function of the configuration and of the check's
-    code, so it is kept in ``$XDG_CACHE_HOME/dcsms`` (default ``~/.cache``) under their hash:
-    a repeated run of the same configuration does not spend seconds recomputing it."""
-    src = b"".join((Path(core.__file__).parent / f).read_bytes() for f in (
-        "check.py", "loop_model.py", "margins.py", "spectra.py", "config.py", "schema.py"))
-    key = hashlib.sha256(src + json.dumps(cfg.params, sort_keys=True, default=str).encode())
+def _cached_verdict(cfg: SystemConfig, what: str,
+                    compute: Callable[[], list[str]]) -> list[str]:
+    """``compute()`` (lines of text), kept in ``$XDG_CACHE_HOME/dcsms`` (default ``~/.cache``)
+    under the hash of ``what``, the configuration and the model's code (every module of
+    ``dcsms_ros.core``): a verdict is a function of those alone, and computing it means
+    importing python-control and the loop model (1.1-1.5 s) before a run can start."""
+    src = b"".join(f.read_bytes() for f in sorted(Path(core.__file__).parent.glob("*.py")))
+    key = hashlib.sha256(src + what.encode()
+                         + json.dumps(cfg.params, sort_keys=True, default=str).encode())
     cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "dcsms" / \
         f"check-{key.hexdigest()[:32]}.json"
     try:
-        return list(json.loads(cache.read_text()))
-    except (OSError, ValueError):
+        return [str(x) for x in json.loads(cache.read_text())]
+    except (OSError, ValueError, TypeError):
         pass
-    # deferred: python-control and the loop model, only when the verdict is not cached
-    from dcsms_ros.core.check import check_config  # noqa: PLC0415 - deferred for --help
-
-    bad = [c for c in check_config(cfg) if not c.ok]
-    lines = [f"model check: {c.mode.label}: {'; '.join(c.failures)}" for c in bad] or [
-        "model check: all six modes stable with margins"]
+    lines = compute()
     try:
         cache.parent.mkdir(parents=True, exist_ok=True)
         tmp = cache.with_suffix(f".{os.getpid()}.tmp")
@@ -165,26 +161,51 @@ def model_check_lines(cfg: SystemConfig) -> list[str]:
     return lines
 
 
+def model_check_lines(cfg: SystemConfig) -> list[str]:
+    """The model's verdict on every mode: one line per failing mode, or one line saying all six
+    are stable with margins (cached: :func:`_cached_verdict`)."""
+    def compute() -> list[str]:
+        # deferred: python-control and the loop model, only when the verdict is not cached
+        from dcsms_ros.core.check import check_config  # noqa: PLC0415 - deferred for --help
+
+        bad = [c for c in check_config(cfg) if not c.ok]
+        return [f"model check: {c.mode.label}: {'; '.join(c.failures)}" for c in bad] or [
+            "model check: all six modes stable with margins"]
+
+    return _cached_verdict(cfg, "model check", compute)
+
+
 def print_model_check(cfg: SystemConfig) -> None:
     """Print :func:`model_check_lines` (and go on)."""
     for line in model_check_lines(cfg):
         print(line, flush=True)
 
 
+def start_refusal(cfg: SystemConfig, mode: Mode, realtime: bool = False) -> str | None:
+    """Why the graph must not start in ``mode``: the model calls it unstable, or
+    (``realtime``) forces ``control.input_timeout_s`` late destabilise it; None if it may
+    (cached: :func:`_cached_verdict`)."""
+    def compute() -> list[str]:
+        # deferred: python-control and the loop model, only when the verdict is not cached
+        from dcsms_ros.core.check import unstable_reason  # noqa: PLC0415 - deferred for --help
+        from dcsms_ros.core.margins import late_force_reason  # noqa: PLC0415 - as above
+
+        reason = unstable_reason(cfg, mode)
+        if reason is None and realtime:
+            reason = late_force_reason(cfg, mode)
+        return [] if reason is None else [reason]
+
+    lines = _cached_verdict(cfg, f"start {mode.label} realtime={realtime}", compute)
+    return lines[0] if lines else None
+
+
 def refuse_unstable_start(cfg: SystemConfig, mode: Mode, allow_unstable: bool,
                           realtime: bool = False) -> None:
-    """Raise :class:`DcsmsError` when the graph would start in a ``mode`` the model calls
-    unstable (``realtime``: or that forces ``control.input_timeout_s`` late destabilise) and
+    """Raise :class:`DcsmsError` when :func:`start_refusal` has a reason and
     ``--allow-unstable`` was not given (the guard a switch passes)."""
     if allow_unstable or mode is Mode.PASSIVE:
         return
-    # deferred: python-control and the loop model, not for `dcsms --help`
-    from dcsms_ros.core.check import unstable_reason  # noqa: PLC0415 - deferred for --help
-    from dcsms_ros.core.margins import late_force_reason  # noqa: PLC0415 - as above
-
-    reason = unstable_reason(cfg, mode)
-    if reason is None and realtime:
-        reason = late_force_reason(cfg, mode)
+    reason = start_refusal(cfg, mode, realtime)
     if reason is not None:
         raise DcsmsError(f"--mode {mode.label}: {reason}; refused (--allow-unstable runs it)")
 
@@ -269,9 +290,22 @@ def plot_dir(path: Path) -> Path:
 
 
 __all__ = [
-    "ProgressBar", "add_config_options", "add_margin_options", "add_output_options",
+    "ProgressBar",
+    "add_config_options",
+    "add_margin_options",
+    "add_output_options",
     "default_config_path",
-    "find_share_file", "jsonable", "load_cfg", "model_check_lines", "parse_excitations",
-    "parse_schedule", "plant_config", "plot_dir", "print_json", "print_model_check",
+    "find_share_file",
+    "jsonable",
+    "load_cfg",
+    "model_check_lines",
+    "parse_excitations",
+    "parse_schedule",
+    "plant_config",
+    "plot_dir",
+    "print_json",
+    "print_model_check",
+    "refuse_unstable_start",
     "share_candidates",
+    "start_refusal",
 ]

@@ -7,6 +7,9 @@ from pathlib import Path
 import pytest
 
 from dcsms_ros.cli import main
+from dcsms_ros.cli.common import start_refusal
+from dcsms_ros.core.config import load_config, parse_override
+from dcsms_ros.core.modes import Mode
 
 UNSTABLE = Path(__file__).resolve().parents[1] / "fixtures" / "tem_unstable.yaml"
 TABLE1 = Path(__file__).resolve().parents[2] / "config" / "table1.yaml"
@@ -55,3 +58,23 @@ def test_a_real_time_start_that_late_forces_destabilise_is_refused(
         "dcsms: error: --mode DFBC: DFBC goes unstable with forces 20 ms late"), err
     assert "delay margin of all is 16.5 ms" in err and "--allow-unstable" in err
     assert not out.exists()
+
+
+def test_the_start_verdict_is_computed_once_per_configuration(
+        tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The refusal's verdict is cached like the model check (importing the loop model costs
+    1.1-1.5 s of every start): the first call computes and keeps it, a second reads it back (a
+    verdict planted in the file is what it returns), and another timeout, mode or schedule is
+    another entry, computed afresh."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    late = load_config(TABLE1, dict([parse_override("control.input_timeout_s=0.02")]))
+    first = start_refusal(late, Mode.DFBC, realtime=True)
+    assert first is not None and first.startswith("DFBC goes unstable with forces 20 ms late")
+    files = list((tmp_path / "dcsms").glob("check-*.json"))
+    assert len(files) == 1
+    files[0].write_text('["planted"]')
+    assert start_refusal(late, Mode.DFBC, realtime=True) == "planted"
+    assert start_refusal(late, Mode.DFBC, realtime=False) is None  # lockstep: no late forces
+    assert start_refusal(load_config(TABLE1), Mode.DFBC, realtime=True) is None
+    start_refusal(late, Mode.FBC, realtime=True)
+    assert len(list((tmp_path / "dcsms").glob("check-*.json"))) == 4
