@@ -17,16 +17,17 @@ import sys
 import time
 from itertools import pairwise
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from dcsms_ros.analysis import modetable
 from dcsms_ros.analysis.paper import TABLE4, within
-from dcsms_ros.analysis.predict import Table4, predict_table4
 from dcsms_ros.cli import EXIT_INTERRUPTED
 from dcsms_ros.cli.common import add_config_options, find_share_file, load_cfg, print_model_check
 from dcsms_ros.cli.up import add_deploy_options, build_graph, check_deploy_options, launch
 from dcsms_ros.core.modes import ALL_MODES, Mode, parse_mode
 from dcsms_ros.errors import DcsmsError
+
+if TYPE_CHECKING:
+    from dcsms_ros.analysis.predict import Table4
 
 #: The paper's Table 4 order; FFC alone is not in the table, so it is not part of the verdict.
 ORDER = ("Passive", "FBC", "FBC+FFC", "DFBC", "DFBC+FFC")
@@ -109,7 +110,9 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_INTERRUPTED
     print(f"dcsms demo: simulated and recorded in {time.monotonic() - t_wall:.0f} s; "
           f"analysing {bag}", flush=True)
-    from dcsms_ros.analysis.report import analyze  # noqa: PLC0415 - deferred for --help
+    # deferred: the analysis and the model's prediction import scipy.signal (0.8 s)
+    from dcsms_ros.analysis.predict import predict_table4  # noqa: PLC0415 - deferred for --help
+    from dcsms_ros.analysis.report import analyze  # noqa: PLC0415 - as above
 
     summary = analyze([bag], reference="passive", out_dir=out, settle_s=settle, from_rest=True)
     print(summary.table())
@@ -223,6 +226,8 @@ def _verdict_3d(summary: Any, model: Table4) -> bool:
     long run converges to); reproduced when every axis sorts the four controlled modes as the
     paper does (a swap of two modes whose 95 % intervals overlap is not resolved by the record:
     it is named, not failed), nothing saturated and nothing grew."""
+    from dcsms_ros.analysis import modetable  # noqa: PLC0415 - deferred for --help
+
     ours = {s["mode"]: s["axes"] for s in summary.segments}
     axes = [a for a in ("x", "y", "z") if a in summary.axes]
     print(f"{'mode':<10}" + "".join(f"{a.upper() + ' paper':>9}{'model':>7}{'ours':>7}"

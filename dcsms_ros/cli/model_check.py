@@ -18,8 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from dcsms_ros.analysis import modetable
-from dcsms_ros.analysis.predict import predict_table4, table_axes
 from dcsms_ros.cli.common import load_cfg, print_json
 from dcsms_ros.cli.model_common import AS_RUNS, cell
 from dcsms_ros.core.check import PEAK_FACTOR, ModeCheck, check_config
@@ -135,6 +133,10 @@ def run_check(args: argparse.Namespace) -> int:
 
 def run_table4(args: argparse.Namespace) -> int:
     """Handler of ``table4``."""
+    # deferred: the prediction imports scipy.signal (0.8 s), not for every `dcsms` command
+    from dcsms_ros.analysis import modetable  # noqa: PLC0415 - deferred for --help
+    from dcsms_ros.analysis.predict import predict_table4, table_axes  # noqa: PLC0415 - as above
+
     cfg: SystemConfig = load_cfg(args)
     t = predict_table4(cfg)
     if args.json:
