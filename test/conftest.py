@@ -12,13 +12,12 @@ Markers (``pytest -m unit`` runs in seconds without DDS; ``make test`` runs ever
 
 from __future__ import annotations
 
-import os
-import random
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pytest
+from rosdomains import lease_domains
 
 from dcsms_ros.core.config import SystemConfig, load_config
 
@@ -26,11 +25,6 @@ if TYPE_CHECKING:
     from rclpy.context import Context
 
 TABLE1 = Path(__file__).resolve().parents[1] / "config" / "table1.yaml"
-# Every test of one run gets a different domain (Fast DDS allows 0..232 with default ports);
-# the pid seeds the order so two runs side by side rarely pick the same ids at the same time.
-_DOMAINS = iter(random.Random(os.getpid()).sample(range(1, 230), 229))
-
-
 ROS_DIRS = ("nodes", "reliability")
 MARKERS = {
     "unit": "fast, no DDS (everything not marked ros or slow)",
@@ -75,18 +69,14 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                      help="run test/reliability/test_soak.py for 10 minutes (default: 25 s)")
 
 
-def unique_domain() -> int:
-    """The next unused ROS domain id of this test run."""
-    return next(_DOMAINS)
-
-
 @pytest.fixture
-def domain(monkeypatch: pytest.MonkeyPatch) -> int:
+def domain(monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
     """This test's own ROS_DOMAIN_ID (also exported to child processes), localhost only."""
-    d = unique_domain()
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(d))
+    lease = lease_domains()
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(lease.first))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    return d
+    yield lease.first
+    lease.release()
 
 
 @pytest.fixture

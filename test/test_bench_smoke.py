@@ -9,19 +9,26 @@ import sys
 from pathlib import Path
 
 import pytest
+from rosdomains import lease_domains
 
 ROOT = Path(__file__).resolve().parents[1]
-# the smoke run starts the graph (ping-pong, lockstep) in its own domain
+# the smoke run starts the graph (ping-pong, lockstep) in domains of its own: bench/graph_bench.py
+# uses DCSMS_BENCH_DOMAIN + 0 .. 16
+BENCH_DOMAINS = 17
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 def test_bench_smoke_writes_json(tmp_path):
     """The smoke run exits 0 and writes machine info plus rows with name, value and unit."""
     out = tmp_path / "results.json"
+    lease = lease_domains(BENCH_DOMAINS)
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               DCSMS_BENCH_DOMAIN=str(150 + os.getpid() % 50))
-    subprocess.run([sys.executable, str(ROOT / "bench" / "run.py"), "--smoke", "--out",
-                    str(out)], check=True, env=env, timeout=600, capture_output=True)
+               DCSMS_BENCH_DOMAIN=str(lease.first))
+    try:
+        subprocess.run([sys.executable, str(ROOT / "bench" / "run.py"), "--smoke", "--out",
+                        str(out)], check=True, env=env, timeout=600, capture_output=True)
+    finally:
+        lease.release()
     data = json.loads(out.read_text())
     assert {"cpu", "cores", "python", "numpy", "date"} <= data["machine"].keys()
     assert data["smoke"] is True
