@@ -43,9 +43,11 @@ RT_PRIORITY_ENV = "DCSMS_RT_PRIORITY"
 #: Writer history of lockstep streams (:func:`dcsms_ros.ros.qos.stream_pub`), and so the
 #: reader history of a recorder of a lockstep run: how far a reliable observer (recorder,
 #: probe) may lag behind, and the window in which a sample it lost (a full shared-memory queue
-#: while its process was starved) can still be repaired, which takes a heartbeat period (~3 s
-#: in Fast DDS): 25,000 samples are 5 s at the composed graph's 5 kHz. Measured: with 1,000, a
-#: recorder on a loaded machine lost bursts of samples of a composed run.
+#: while its process was starved) can still be repaired, which takes a heartbeat period of the
+#: writer (3 s in Fast DDS, 100 ms with the package's profile since 2026-11-28) plus the time
+#: the starved reader needs: 25,000 samples are 5 s at the composed graph's 5 kHz. Measured
+#: with 1,000 and 3 s heartbeats: a recorder on a loaded machine lost bursts of samples of a
+#: composed run.
 LOCKSTEP_WRITER_DEPTH = 25000
 
 

@@ -7,12 +7,14 @@ import subprocess
 import sys
 import textwrap
 
-from rosdomains import _ORDER, _USED, LEASE_DIR, _lock, lease_domains
+from rosdomains import _ORDER, _USED, BLOCKS, LEASE_DIR, SINGLE, _lock, lease_domains
 
 
 def test_a_leased_block_is_locked_until_released_and_never_leased_again_by_this_run():
     lease = lease_domains(3)
     ids = range(lease.first, lease.first + 3)
+    # blocks never take the single ids, which a run scatters over their whole range
+    assert set(ids) <= set(BLOCKS) and not set(BLOCKS) & set(SINGLE)
     assert all(d in _USED for d in ids)
     assert [_lock(d) for d in ids] == [None] * 3  # held: another open file cannot lock it
     lease.release()
