@@ -77,6 +77,18 @@ def test_watchdog() -> None:
     assert w.check(5.0) is None and w.wait_s(5.0) is None  # nothing arrived yet
     assert not w.feed(1.0)
     assert w.check(1.005) is None and math.isclose(w.wait_s(1.005), 0.005)
-    assert w.check(1.02) is True and w.check(1.03) is False and w.stale_events == 1
+    assert w.check(1.02) is True and math.isclose(w.wait_s(1.02), 0.0025)
+    assert w.check(1.03) is False and w.stale_events == 1
     assert math.isclose(w.wait_s(1.03), 0.0025)
     assert w.feed(1.04) and not w.stale
+
+
+def test_a_stale_watchdog_repeats_every_quarter_timeout_however_often_asked() -> None:
+    """A composed driver asks at every wake-up of any node (here every 0.1 ms for 1 s)."""
+    w = Watchdog(0.01)
+    w.feed(0.0)
+    said = [(t, r) for t in np.arange(0.0, 1.0, 1e-4) if (r := w.check(float(t))) is not None]
+    assert said[0][1] is True and all(r is False for _, r in said[1:])
+    gaps = np.diff([t for t, _ in said])
+    assert len(said) == pytest.approx((1.0 - 0.01) / 0.0025, abs=2)
+    assert gaps.min() >= 0.0025 - 1e-9 and gaps.max() <= 0.0025 + 1e-4 + 1e-9
