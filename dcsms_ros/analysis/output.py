@@ -135,9 +135,13 @@ def _md_table4(s: Summary) -> str:
         st = seg.get("stability", {})
         grow = ", ".join(f"{g['body']} {g['axis']} grows {g['rate_per_s']:.2g} /s"
                          for g in st.get("growing", []))
+        wander = ", ".join(f"{g['body']} {g['axis']} x{g['factor']:.1f}, "
+                           f"x{g['resolved_factor']:.1f} above {g['resolved_from_hz']:.2g} Hz"
+                           for g in st.get("wander", []))
         cells.append(f"**unstable** ({grow})" if st.get("unstable") else
                      f"growing, model stable ({grow})" if grow else
-                     "steady" if st.get("checked", True) else "open loop")
+                     f"steady (a wander slower than the record resolves: {wander})" if wander
+                     else "steady" if st.get("checked", True) else "open loop")
         rows.append(f"| {seg['segment']} | " + " | ".join(cells) + " |")
     note = modetable.estimator_note(s.segments, s.axes)
     if note:

@@ -25,7 +25,7 @@ from dcsms_ros.analysis.segments import (
     split_segments,
 )
 from dcsms_ros.analysis.series import AXIS_NAMES
-from dcsms_ros.analysis.stability import envelope
+from dcsms_ros.analysis.stability import GROWTH_FACTOR, envelope, resolved_factor
 from dcsms_ros.analysis.summary import Summary, dumps
 from dcsms_ros.analysis.table4 import table4
 from dcsms_ros.analysis.transients import settle_times
@@ -245,7 +245,8 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
     js["stability"] = (_stability(al.bodies, stages, axes, al.fs, summary, where,
                                   _model_stability(cfg, seg, verdicts))
                        if seg.mode is None or seg.mode.feedback else
-                       {"unstable": False, "growing": [], "checked": False, "model": None})
+                       {"unstable": False, "growing": [], "wander": [], "checked": False,
+                        "model": None})
     return {"json": js, "arrays": arrays, "top": top}
 
 
@@ -255,20 +256,32 @@ def _stability(bodies: dict[str, np.ndarray], stages: list[str], axes: list[str]
 
     Only segments with a feedback loop closed are judged: an open-loop segment cannot be
     unstable. A growing envelope is a finding of a short record, and a stable loop with slow
-    poles makes them too: the air mounts' rocking modes (1.3 % damping at 0.53 Hz in the TEM
-    preset) or sensor-extension poles near 0.02 Hz (time constants of ~11 s) wander by 3-20x
-    within a 12-37 s segment, as often as once in 20 stage-axis records of the TEM. So a segment
-    is *unstable* when an envelope grows and the model of the recorded configuration is
-    unstable too, or no model is recorded; when the model is stable it is reported as *growing*
-    with the model's slowest time constant, and a longer record decides.
+    poles makes them too: the sensor-extension poles near 0.02 Hz of the TEM fit put most of a
+    stage-1 velocity's power below 0.2 Hz, where a 60 s segment holds a few cycles, and its
+    envelope wanders 3-10x. So, with a stable model, a growth that the record's resolved motion
+    does not confirm (:func:`.stability.resolved_factor` below
+    :data:`.stability.GROWTH_FACTOR`) is listed as ``wander``, not as growing. A segment is
+    *unstable* when an envelope grows and the model of the recorded configuration is unstable
+    too, or no model is recorded; when the model is stable and the resolved motion grows too
+    it is reported as *growing* with the model's slowest time constant, and a longer record
+    decides.
     """
     growing: list[dict[str, Any]] = []
+    wander: list[dict[str, Any]] = []
+    stable = model is not None and model.stable
     for s in stages:
         for a in axes:
-            env = envelope(bodies[s][:, AXIS_NAMES.index(a)], fs)
-            if env is not None and env.growing:
-                growing.append({"body": s, "axis": a, "rate_per_s": env.rate_per_s,
-                                "factor": env.factor})
+            x = bodies[s][:, AXIS_NAMES.index(a)]
+            env = envelope(x, fs)
+            if env is None or not env.growing:
+                continue
+            g: dict[str, Any] = {"body": s, "axis": a, "rate_per_s": env.rate_per_s,
+                                 "factor": env.factor, "resolved_from_hz": 1.0 / env.quarter_s}
+            g["resolved_factor"] = resolved_factor(x, fs, env)
+            if stable and g["resolved_factor"] < GROWTH_FACTOR:
+                wander.append(g)
+            else:
+                growing.append(g)
     judged = None if model is None else {
         "stable": model.stable, "worst_pole_hz": [model.worst_s_hz.real, model.worst_s_hz.imag],
         "slowest_time_constant_s": (1.0 / (-2.0 * math.pi * model.worst_s_hz.real)
@@ -288,9 +301,10 @@ def _stability(bodies: dict[str, np.ndarray], stages: list[str], axes: list[str]
             slow = f" (slowest time constant {tau:.3g} s)" if tau else ""
             summary.warnings.append(
                 f"{where}: growing: {grows}, but the model of the recorded configuration is "
-                f"stable{slow}: a slow transient or a lightly damped mode; a longer record "
-                "decides")
-    return {"unstable": unstable, "growing": growing, "checked": True, "model": judged}
+                f"stable{slow}: a slow transient or a lightly damped mode; a longer "
+                "record decides")
+    return {"unstable": unstable, "growing": growing, "wander": wander, "checked": True,
+            "model": judged}
 
 
 def _model_stability(cfg: SystemConfig | None, seg: Segment,

@@ -3,6 +3,7 @@ never is."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -43,8 +44,8 @@ def test_growing_envelope_is_reported_unstable(tmp_path, capsys):
     out = tmp_path / "report"
     summary = analyze([bag], out_dir=out)
     seg = {s["mode"]: s for s in summary.segments}
-    assert seg["Passive"]["stability"] == {"unstable": False, "growing": [], "checked": False,
-                                           "model": None}
+    assert seg["Passive"]["stability"] == {"unstable": False, "growing": [], "wander": [],
+                                           "checked": False, "model": None}
     st = seg["DFBC"]["stability"]
     assert st["unstable"] is True
     rate = max(g["rate_per_s"] for g in st["growing"])
@@ -86,11 +87,12 @@ def test_build_up_from_rest_is_not_growth():
 
 
 @pytest.mark.slow
-def test_growth_the_stable_model_explains_is_not_called_unstable(tmp_path):
+def test_growth_the_stable_model_explains_is_wander_not_a_warning(tmp_path):
     """The Table-4 fit of the TEM, FBC switched on 1 s after a start from rest: its slow poles
     (sensor extension near 0.02 Hz, ~11 s) make the stage-1 y envelope grow ~10x over the 12 s
-    segment. The report names the growth and the model's slowest time constant, and does not
-    call the segment unstable; the model agrees (every FBC pole inside the unit circle)."""
+    segment, all of it in motion slower than one cycle per 3 s quarter: above 0.33 Hz the
+    envelope does not grow. The report lists it as wander and warns of nothing; the model
+    agrees (every FBC pole inside the unit circle)."""
     cfg = load_config(ROOT / "config" / "tem_paper_fit.yaml")
     res = simulate(cfg, Mode.PASSIVE, 14.0, schedule=[(1.0, Mode.FBC)], seed=1, trip=False)
     bag = tmp_path / "bag"
@@ -99,10 +101,54 @@ def test_growth_the_stable_model_explains_is_not_called_unstable(tmp_path):
     summary = analyze([bag], out_dir=tmp_path / "report", settle_s=1.0)
     fbc = next(s for s in summary.segments if s["mode"] == "FBC")
     st = fbc["stability"]
-    assert st["growing"] and not st["unstable"]
+    assert not st["growing"] and not st["unstable"]
     assert st["model"]["stable"] is True and stability(cfg, Mode.FBC).stable
-    assert st["model"]["slowest_time_constant_s"] > 5.0
-    assert not any("UNSTABLE" in w for w in summary.warnings)
+    big = max(st["wander"], key=lambda g: g["factor"])
+    assert big["factor"] > GROWTH_FACTOR
+    assert big["resolved_factor"] < 2.0 and big["resolved_from_hz"] == pytest.approx(1 / 3.0)
+    assert not any("UNSTABLE" in w or "growing:" in w for w in summary.warnings)
+    assert "a wander slower than the record resolves" in (
+        tmp_path / "report" / "report.md").read_text()
+
+
+@pytest.mark.slow
+def test_growth_beyond_the_stable_models_scatter_is_reported_growing(tmp_path):
+    """A rig whose loop is not the one its configuration describes: the unstable fixture's
+    DFBC record (growing ~0.36 /s) stored with the Table-4 fit's configuration, whose DFBC is
+    stable. The growth is at the fixture's 0.43 Hz pole, above one cycle per quarter (0.33 Hz),
+    and confirmed there: reported growing (not unstable: the recorded model is stable), with a
+    warning."""
+    fit = load_config(ROOT / "config" / "tem_paper_fit.yaml")
+    res = simulate(load_config(FIXTURE), Mode.PASSIVE, 26.0, schedule=[(13.0, Mode.DFBC)],
+                   seed=3, trip=False)
+    bag = tmp_path / "bag"
+    write_result_bag(dataclasses.replace(res, cfg=fit), bag)
+    # the fixture's growth reaches the actuators' limit within ~4 s: judged from 1 s after
+    # the switch, as the fixture's own test is
+    summary = analyze([bag], out_dir=tmp_path / "report", settle_s=1.0)
+    st = next(s for s in summary.segments if s["mode"] == "DFBC")["stability"]
+    assert st["growing"] and not st["unstable"] and st["model"]["stable"] is True
+    assert all(g["resolved_factor"] >= GROWTH_FACTOR for g in st["growing"])
     assert any("growing:" in w and "model of the recorded configuration is stable" in w
                for w in summary.warnings)
-    assert "growing, model stable" in (tmp_path / "report" / "report.md").read_text()
+
+
+@pytest.mark.slow
+def test_the_tem_fits_stationary_segments_raise_no_growth_warning(tmp_path):
+    """What `make demo` warned of: 60 s of DFBC+FFC after the model's settle, the Table-4 fit.
+    Over seeds 1-40 the envelope rule alone (monotone, 3x) called 5 of the 240 stage-axis
+    records growing (x5.9-10.0; resolved above 0.067 Hz: x0.44-1.28); three of those seeds
+    here: each record is wander, none is warned of."""
+    cfg = load_config(ROOT / "config" / "tem_paper_fit.yaml")
+    old, warned = 0, 0
+    for seed in (3, 6, 17):
+        res = simulate(cfg, Mode.PASSIVE, 67.1, schedule=[(4.0, Mode.DFBC_FFC)], seed=seed)
+        bag = tmp_path / f"bag{seed}"
+        write_result_bag(res, bag)
+        summary = analyze([bag], out_dir=tmp_path / f"report{seed}")
+        st = next(s for s in summary.segments if s["mode"] == "DFBC+FFC")["stability"]
+        old += len(st["growing"]) + len(st["wander"])
+        warned += sum("growing:" in w or "UNSTABLE" in w for w in summary.warnings)
+        assert not st["growing"]
+        assert all(g["resolved_factor"] < GROWTH_FACTOR for g in st["wander"])
+    assert old == 3 and warned == 0
