@@ -256,13 +256,13 @@ def _stability(bodies: dict[str, np.ndarray], stages: list[str], axes: list[str]
 
     Only segments with a feedback loop closed are judged: an open-loop segment cannot be
     unstable. A growing envelope is a finding of a short record, and a stable loop with slow
-    poles makes them too: the sensor-extension poles near 0.02 Hz of the TEM fit put most of a
-    stage-1 velocity's power below 0.2 Hz, where a 60 s segment holds a few cycles, and its
-    envelope wanders 3-10x. So, with a stable model, a growth that the record's resolved motion
-    does not confirm (:func:`.stability.resolved_factor` below
+    poles makes them too, and so does slow sensor noise: the TEM fit's geophones, extended to
+    0.02 Hz, put most of a stage-1 velocity reading's power below 0.2 Hz, where a 60 s segment
+    holds a few cycles, and its envelope wanders 3-10x. So, with a stable model, a growth that
+    the record's resolved content does not confirm (:func:`.stability.resolved_factor` below
     :data:`.stability.GROWTH_FACTOR`) is listed as ``wander``, not as growing. A segment is
     *unstable* when an envelope grows and the model of the recorded configuration is unstable
-    too, or no model is recorded; when the model is stable and the resolved motion grows too
+    too, or no model is recorded; when the model is stable and the resolved content grows too
     it is reported as *growing* with the model's slowest time constant, and a longer record
     decides.
     """

@@ -11,14 +11,15 @@ and the growth does not slow down: the last quarter-to-quarter step in ln RMS is
 its pace; a build-up towards a new stationary level after a switch, or from rest at the start
 of a run, loses it (a lightly damped 0.5 Hz mode of a TEM takes ~20 s to settle).
 
-A record whose power sits in motion slower than the record resolves breaks the premise above:
-each quarter then holds less than one cycle of it, and its mean square is close to one random
-draw. The TEM fit's stage-1 velocities are such records (the loop feeds the geophones'
-self-noise, extended to 0.02 Hz, back into the block: its model puts ~4.5 of their ~4.6 um/s
-RMS below 0.2 Hz, against 0.35 um/s at 0.2-1 Hz), and their envelopes "grew" 3-10x within a
-60 s segment with no change in the loop. :func:`resolved_factor` is the same growth factor
-with that motion removed (a high-pass at one cycle per quarter): a growth that it does not
-confirm lies in motion that the record cannot tell from a stationary wander.
+A record whose power sits in content slower than the record resolves breaks the premise
+above: each quarter then holds less than one cycle of it, and its mean square is close to one
+random draw. The TEM fit's decoupled stage velocities are such records: the geophones'
+self-noise, amplified by their extension to 0.02 Hz, is in the reading (in DFBC+FFC the model
+puts 4.6 um/s of the stage-1 z reading below 0.2 Hz, where the block itself moves 0.03 um/s,
+against 0.35 um/s at 0.2-1 Hz), and their envelopes "grew" 3-10x within a 60 s segment with no
+change in the loop. :func:`resolved_factor` is the same growth factor
+with that content removed (a high-pass at one cycle per quarter): a growth that it does not
+confirm lies in content that the record cannot tell from a stationary wander.
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ def envelope(x: NDArray[np.floating], fs: float) -> Envelope | None:
 
 
 def resolved_factor(x: NDArray[np.floating], fs: float, env: Envelope) -> float:
-    """Last over first quarter RMS of ``x`` (K,) sampled at ``fs`` (Hz) without its motion
+    """Last over first quarter RMS of ``x`` (K,) sampled at ``fs`` (Hz) without its content
     slower than one cycle per quarter of ``env`` (second-order Butterworth high-pass at
     ``1 / env.quarter_s`` Hz, run forwards and backwards: no phase, no start-up ramp); nan when
     too short to judge."""

@@ -225,7 +225,8 @@ def _verdict_3d(summary: Any, model: Table4) -> bool:
     """X / Y / Z beside the paper's Table 4 and the model's prediction of this run (the value a
     long run converges to); reproduced when every axis sorts the four controlled modes as the
     paper does (a swap of two modes whose 95 % intervals overlap is not resolved by the record:
-    it is named, not failed), nothing saturated and nothing grew."""
+    it is named, not failed; so are neighbours kept in order whose intervals overlap), nothing
+    saturated and nothing grew."""
     from dcsms_ros.analysis import modetable  # noqa: PLC0415 - deferred for --help
 
     ours = {s["mode"]: s["axes"] for s in summary.segments}
@@ -257,7 +258,11 @@ def _verdict_3d(summary: Any, model: Table4) -> bool:
         same = len(have) >= 2 and not swaps
         fine = len(have) >= 2 and len(close) == len(swaps)
         ok &= fine
-        verdict = ("reproduced" if same else
+        # a kept order is resolved no better than a swap where neighbours' intervals overlap
+        ties = [f"{hi} / {lo}" for hi, lo in pairwise(have)
+                if _overlap(ours, hi, lo, a)] if same else []
+        verdict = (("reproduced" + (f"; not resolved by the record (95 % intervals overlap): "
+                                    f"{', '.join(ties)}" if ties else "")) if same else
                    f"reproduced within the 95 % intervals, ours {' > '.join(got)}: "
                    + ", ".join(f"{hi} / {lo} predicted {model.values[hi][a]:.3f} / "
                                f"{model.values[lo][a]:.3f}" for hi, lo in close)

@@ -90,7 +90,7 @@ def test_build_up_from_rest_is_not_growth():
 def test_growth_the_stable_model_explains_is_wander_not_a_warning(tmp_path):
     """The Table-4 fit of the TEM, FBC switched on 1 s after a start from rest: its slow poles
     (sensor extension near 0.02 Hz, ~11 s) make the stage-1 y envelope grow ~10x over the 12 s
-    segment, all of it in motion slower than one cycle per 3 s quarter: above 0.33 Hz the
+    segment, all of it in content slower than one cycle per 3 s quarter: above 0.33 Hz the
     envelope does not grow. The report lists it as wander and warns of nothing; the model
     agrees (every FBC pole inside the unit circle)."""
     cfg = load_config(ROOT / "config" / "tem_paper_fit.yaml")

@@ -94,14 +94,22 @@ def _summary_from(values, spread=1.3):
 @pytest.mark.slow
 def test_order_verdict_tolerates_only_swaps_the_record_cannot_resolve(capsys):
     """A swap of X's DFBC and DFBC+FFC (model 1.3x apart, intervals +-30 %: overlapping) is
-    named and passes; a swap of Z's FBC and DFBC+FFC (model 14x apart: disjoint intervals)
-    fails the verdict, and so does the close swap without intervals."""
+    named and passes, and so are those neighbours kept in order but overlapping; a swap of Z's
+    FBC and DFBC+FFC (model 14x apart: disjoint intervals) fails the verdict, and so does the
+    close swap without intervals."""
     model = predict_table4(load_config(TEM), ALL_MODES)
     base = {m: [model.values[m][a] for a in "xyz"] for m in demo.ORDER}
     close = {m: list(v) for m, v in base.items()}
     close["DFBC"][0], close["DFBC+FFC"][0] = base["DFBC+FFC"][0], base["DFBC"][0]
     assert demo._verdict_3d(_summary_from(close), model)
     assert "reproduced within the 95 % intervals" in capsys.readouterr().out
+    # the model's own values, +-30 %: X's DFBC and DFBC+FFC kept in order but overlapping
+    assert demo._verdict_3d(_summary_from(base), model)
+    out = capsys.readouterr().out
+    assert ("order in X FBC > FBC+FFC > DFBC > DFBC+FFC (paper's): reproduced; not resolved by "
+            "the record (95 % intervals overlap): FBC / FBC+FFC, DFBC / DFBC+FFC") in out, out
+    assert demo._verdict_3d(_summary_from(base, spread=1.0), model)
+    assert "not resolved" not in capsys.readouterr().out
     assert not demo._verdict_3d(_summary_from(close, spread=1.0), model)
     assert "NOT reproduced" in capsys.readouterr().out
     far = {m: list(v) for m, v in base.items()}
