@@ -82,10 +82,18 @@ def analyze(bags: Sequence[str | Path], reference: str = "passive",
     ------
     BagError
         A bag cannot be read (the message names it).
+    DcsmsError
+        A settle time that is negative or not finite, or a timeline window that is not
+        positive.
     """
     ref_mode = parse_mode(reference)
     if not timeline_s > 0.0:
         raise DcsmsError(f"timeline window {timeline_s:g} s: must be > 0")
+    for x in ((settle_s,) if isinstance(settle_s, (int, float)) else
+              () if settle_s is None else tuple(settle_s.values())):
+        # a negative settle would analyse the previous mode's samples as this one's
+        if not (math.isfinite(x) and x >= 0.0):
+            raise DcsmsError(f"settle {x:g} s: must be finite and >= 0")
     warnings: list[str] = []
     work: list[tuple[BagData, Segment, SystemConfig | None]] = []
     timelines: list[tuple[str, tline.Timeline]] = []

@@ -10,6 +10,7 @@ import pytest
 from synth_bag import write_bag
 
 from dcsms_ros.analysis.report import analyze
+from dcsms_ros.cli import main
 
 # every test here reads bags of 20-60 s runs made by session fixtures
 pytestmark = pytest.mark.slow
@@ -69,3 +70,15 @@ def test_cli_prints_mode_table_and_json(bag: Path, capsys: pytest.CaptureFixture
     assert json.loads(capsys.readouterr().out)["reference"] == "Passive"
     assert main(["analyze", str(bag.parent / "missing")]) == 2
     assert "missing" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("settle", ["-1", "nan", "inf"])
+def test_bad_settle_is_a_usage_error(settle: str, tmp_path: Path,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """A negative settle would analyse the previous mode's samples as the new mode's; NaN
+    crashed the segment split. Refused before any bag is read or anything written."""
+    assert main(["analyze", str(tmp_path / "bag"), "--settle", settle,
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"dcsms: error: settle {float(settle):g} s: must be finite and >= 0\n"
+    assert not (tmp_path / "o").exists()
