@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from dcsms_ros.analysis import estimators as est
-from dcsms_ros.analysis import frf, output, timefreq
+from dcsms_ros.analysis import frf, output, segment_stability, timefreq
 from dcsms_ros.analysis import paper as paper_table
 from dcsms_ros.analysis import timeline as tline
 from dcsms_ros.analysis.criteria import evaluate
@@ -25,7 +25,6 @@ from dcsms_ros.analysis.segments import (
     split_segments,
 )
 from dcsms_ros.analysis.series import AXIS_NAMES
-from dcsms_ros.analysis.stability import GROWTH_FACTOR, envelope, resolved_factor
 from dcsms_ros.analysis.summary import Summary, dumps
 from dcsms_ros.analysis.table4 import table4
 from dcsms_ros.analysis.transients import settle_times
@@ -250,69 +249,12 @@ def _segment(data: BagData, seg: Segment, cfg: SystemConfig | None, axes: list[s
         if ground is not None:
             arrays[a]["ground"] = ground
     js["forces"] = _forces(data, seg, cfg)
-    js["stability"] = (_stability(al.bodies, stages, axes, al.fs, summary, where,
-                                  _model_stability(cfg, seg, verdicts))
+    js["stability"] = (segment_stability.judge(al.bodies, stages, axes, al.fs, summary.warnings,
+                                               where, _model_stability(cfg, seg, verdicts))
                        if seg.mode is None or seg.mode.feedback else
                        {"unstable": False, "growing": [], "wander": [], "checked": False,
                         "model": None})
     return {"json": js, "arrays": arrays, "top": top}
-
-
-def _stability(bodies: dict[str, np.ndarray], stages: list[str], axes: list[str], fs: float,
-               summary: Summary, where: str, model: Stability | None) -> dict[str, Any]:
-    """Growing envelopes of the stage velocities (:mod:`.stability`), judged with the model.
-
-    Only segments with a feedback loop closed are judged: an open-loop segment cannot be
-    unstable. A growing envelope is a finding of a short record, and a stable loop with slow
-    poles makes them too, and so does slow sensor noise: the TEM fit's geophones, extended to
-    0.02 Hz, put most of a stage-1 velocity reading's power below 0.2 Hz, where a 60 s segment
-    holds a few cycles, and its envelope wanders 3-10x. So, with a stable model, a growth that
-    the record's resolved content does not confirm (:func:`.stability.resolved_factor` below
-    :data:`.stability.GROWTH_FACTOR`) is listed as ``wander``, not as growing. A segment is
-    *unstable* when an envelope grows and the model of the recorded configuration is unstable
-    too, or no model is recorded; when the model is stable and the resolved content grows too
-    it is reported as *growing* with the model's slowest time constant, and a longer record
-    decides.
-    """
-    growing: list[dict[str, Any]] = []
-    wander: list[dict[str, Any]] = []
-    stable = model is not None and model.stable
-    for s in stages:
-        for a in axes:
-            x = bodies[s][:, AXIS_NAMES.index(a)]
-            env = envelope(x, fs)
-            if env is None or not env.growing:
-                continue
-            g: dict[str, Any] = {"body": s, "axis": a, "rate_per_s": env.rate_per_s,
-                                 "factor": env.factor, "resolved_from_hz": 1.0 / env.quarter_s}
-            g["resolved_factor"] = resolved_factor(x, fs, env)
-            if stable and g["resolved_factor"] < GROWTH_FACTOR:
-                wander.append(g)
-            else:
-                growing.append(g)
-    judged = None if model is None else {
-        "stable": model.stable, "worst_pole_hz": [model.worst_s_hz.real, model.worst_s_hz.imag],
-        "slowest_time_constant_s": (1.0 / (-2.0 * math.pi * model.worst_s_hz.real)
-                                    if model.stable and model.worst_s_hz.real < 0 else None)}
-    unstable = bool(growing) and (model is None or not model.stable)
-    if growing:
-        g = max(growing, key=lambda x: float(x["rate_per_s"]))
-        grows = (f"the {g['body']} {g['axis']} velocity envelope grows {g['rate_per_s']:.3g} /s "
-                 f"(x{g['factor']:.1f} over the segment)")
-        if unstable:
-            p = None if model is None else model.worst_s_hz
-            why = "" if p is None else (f"; the model is unstable too (pole {p.real:+.4f} "
-                                        f"{p.imag:+.4f}j Hz)")
-            summary.warnings.append(f"{where}: UNSTABLE: {grows}{why}")
-        else:
-            tau = judged["slowest_time_constant_s"] if judged else None
-            slow = f" (slowest time constant {tau:.3g} s)" if tau else ""
-            summary.warnings.append(
-                f"{where}: growing: {grows}, but the model of the recorded configuration is "
-                f"stable{slow}: a slow transient or a lightly damped mode; a longer "
-                "record decides")
-    return {"unstable": unstable, "growing": growing, "wander": wander, "checked": True,
-            "model": judged}
 
 
 def _model_stability(cfg: SystemConfig | None, seg: Segment,
