@@ -33,13 +33,13 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
-from scipy import optimize
 
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller
 from dcsms_ros.core.loop_model import Break, LoopModel, Response, loop_model
 from dcsms_ros.core.model import axis_names
 from dcsms_ros.core.modes import ControllerId, Mode, enabled_controllers, feedback_ids
+from dcsms_ros.core.solvers import brent_root, nelder_mead
 
 Array = NDArray[np.float64]
 CArray = NDArray[np.complex128]
@@ -158,7 +158,7 @@ def _refine(fun: Callable[[float], float], f: Array, values: Array) -> list[floa
     s = np.sign(values)
     for k in np.nonzero(s[:-1] * s[1:] < 0)[0]:
         try:
-            roots.append(float(optimize.brentq(fun, f[k], f[k + 1], xtol=1e-9 * f[k])))
+            roots.append(float(brent_root(fun, f[k], f[k + 1], xtol=1e-9 * f[k])))
         except ValueError:
             roots.append(float(0.5 * (f[k] + f[k + 1])))
     return roots
@@ -237,10 +237,9 @@ def _mu_upper(m: CArray) -> float:
     # start from the Osborne scaling that balances |m|'s rows and columns (close to optimal)
     _, (scale, _) = scipy.linalg.matrix_balance(np.abs(m), permute=False, separate=True)
     x0 = np.log(scale[0] / scale[1:]) if np.all(scale > 0) else np.zeros(n - 1)
-    res = optimize.minimize(smax, x0, method="Nelder-Mead",
-                            options={"xatol": 1e-5, "fatol": 1e-7 * max(top, 1e-300),
-                                     "maxiter": 200 * n})
-    return min(top, smax(x0), float(res.fun))
+    _, best = nelder_mead(smax, x0, xatol=1e-5, fatol=1e-7 * max(top, 1e-300),
+                          maxiter=200 * n)
+    return min(top, smax(x0), best)
 
 
 def disk_from_alpha(alpha: float) -> tuple[float, float]:
