@@ -95,6 +95,10 @@ class RunSummary:
     forces : int
         Samples x controllers the plant takes a force from (0: not known), what ``stale``
         is a part of.
+    overruns : int
+        Of ``late``, the deadlines dropped from a backlog (real time: the plant fell more
+        than a burst behind and moved its schedule on); they passed without a sample, so
+        they count in the deadlines of :attr:`late_fraction` too.
     """
 
     samples: int
@@ -107,10 +111,18 @@ class RunSummary:
     lockstep: bool = True
     published: int | None = None
     forces: int = 0
+    overruns: int = 0
+
+    @property
+    def late_fraction(self) -> float:
+        """Of the deadlines that passed (the samples and the dropped ones), the part that
+        was missed (0 to 1)."""
+        deadlines = self.samples + self.overruns
+        return self.late / deadlines if deadlines else 0.0
 
     def line(self) -> str:
         """``samples N, late N (x %), stale forces N, control latency p50/p99 X/Y ms, ...``."""
-        pct = 100.0 * self.late / self.samples if self.samples else 0.0
+        pct = 100.0 * self.late_fraction
         if self.recorded is None:
             rec = "not recorded"
         elif self.published is not None:
@@ -133,8 +145,8 @@ class RunSummary:
         if self.lockstep or not self.samples:
             return None
         out = []
-        if self.late > LATE_WARN * self.samples:
-            out.append(f"{100.0 * self.late / self.samples:.3g} % of the samples missed their "
+        if self.late_fraction > LATE_WARN:
+            out.append(f"{100.0 * self.late_fraction:.3g} % of the samples missed their "
                        f"deadline: this machine did not keep the graph in real time, and the "
                        f"loop that ran had more delay than the configured one")
         if self.forces and self.stale > STALE_WARN * self.forces:
@@ -149,8 +161,7 @@ class RunSummary:
 
     def to_dict(self) -> dict[str, Any]:
         """The fields, and the late fraction."""
-        return {**asdict(self), "late_fraction": self.late / self.samples if self.samples
-                else 0.0}
+        return {**asdict(self), "late_fraction": self.late_fraction}
 
 
 def _ms(s: float) -> str:
@@ -195,7 +206,7 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
                       latency_p99_s=num("latency_p99_ms") * 1e-3,
                       recorded=recorded, samples_x_streams=scale,
                       lockstep=plant.get("schedule", "lockstep") == "lockstep",
-                      published=sent)
+                      published=sent, overruns=int(plant.get("overruns", "0")))
 
 
 __all__ = ["LATE_WARN", "STALE_WARN", "LatencyHistogram", "RunSummary", "summarize"]

@@ -36,8 +36,8 @@ def test_latency_out_of_range_and_empty() -> None:
 
 
 def test_summary_from_a_plant_report_and_bag_counts() -> None:
-    """late = overruns + late steps + lockstep timeouts; recorded of expected over the
-    recorded streams."""
+    """late = overruns + late steps + lockstep timeouts, a part of the deadlines that passed
+    (the samples and the 25 dropped); recorded of expected over the recorded streams."""
     plant = {"sample": "4000", "overruns": "25", "late_steps": "5", "lockstep_timeouts": "10",
              "stale_samples": "7", "latency_p50_ms": "0.3100", "latency_p99_ms": "1.2000"}
     counts = {"/a": 4000, "/b": 3990, "/dcsms/mode": 3}
@@ -45,9 +45,9 @@ def test_summary_from_a_plant_report_and_bag_counts() -> None:
     assert (s.samples, s.late, s.stale, s.recorded, s.samples_x_streams) == (4000, 40, 7, 7990,
                                                                              8000)
     assert s.latency_p99_s == pytest.approx(1.2e-3)
-    assert s.line() == ("samples 4000, late 40 (1 %), stale forces 7, control latency "
+    assert s.line() == ("samples 4000, late 40 (0.994 %), stale forces 7, control latency "
                         "p50/p99 0.310/1.200 ms, recorded 7990 of 8000 messages")
-    assert s.to_dict()["late_fraction"] == pytest.approx(0.01)
+    assert s.to_dict()["late_fraction"] == pytest.approx(40 / 4025)
     # real time: samples x streams is not what was published; the line does not say "of"
     rt = summarize({**plant, "schedule": "realtime"}, counts, ["/a", "/b", "/c"])
     assert rt.line().endswith("recorded 7990 stream messages (samples x streams = 8000)")
@@ -103,3 +103,17 @@ def test_a_real_time_run_with_more_than_one_percent_stale_forces_warns(
     assert [w.index(x) for x in says] == sorted(w.index(x) for x in says)
     assert ("missed their deadline" in w) == (late > 0)
 
+
+
+def test_late_fraction_of_a_plant_that_fell_behind_stays_a_fraction() -> None:
+    """A plant at half speed drops as many deadlines as it computes samples: 4,000 samples,
+    4,000 dropped, 760 computed after the next was due are 4,760 of 8,000 deadlines missed
+    (59.5 %), not 119 % of the samples (what the summary printed before)."""
+    plant = {"sample": "4000", "overruns": "4000", "late_steps": "760",
+             "schedule": "realtime", "controllers": "3"}
+    s = summarize(plant, None, [])
+    assert s.late == 4760 and s.late_fraction == pytest.approx(0.595)
+    assert "late 4760 (59.5 %)" in s.line()
+    warning = s.warning()
+    assert warning is not None and warning.startswith("59.5 % of the samples missed")
+    assert summarize({"sample": "0", "schedule": "realtime"}, None, []).late_fraction == 0.0
