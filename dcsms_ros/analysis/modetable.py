@@ -108,7 +108,8 @@ def normalize(value: float, reference: float) -> tuple[float, float]:
 
 
 def format_table(rows: Sequence[dict[str, Any]], axes: Sequence[str]) -> str:
-    """Plain-text mode table: one row per segment, ``normalized (dB)`` per axis.
+    """Plain-text mode table: one row per segment, ``normalized``, its interval and the
+    attenuation (dB, -20 log10 normalized: positive where the mode attenuates) per axis.
 
     Parameters
     ----------
@@ -118,7 +119,7 @@ def format_table(rows: Sequence[dict[str, Any]], axes: Sequence[str]) -> str:
     axes : sequence of str
         Axis names in column order.
     """
-    head = f"{'mode':<10}" + "".join(f"{a.upper() + ' norm':>12}{'95 % CI':>16}{'dB':>8}"
+    head = f"{'mode':<10}" + "".join(f"{a.upper() + ' norm':>12}{'95 % CI':>16}{'att. dB':>9}"
                                      for a in axes)
     lines = [head, "-" * len(head)]
     for r in rows:
@@ -127,7 +128,7 @@ def format_table(rows: Sequence[dict[str, Any]], axes: Sequence[str]) -> str:
             ax = r["axes"].get(a, {})
             n, db = ax.get("normalized"), ax.get("attenuation_db")
             cells.append(f"{_num(n, '.3f'):>12}{interval(ax.get('normalized_ci')):>16}"
-                         f"{_num(db, '+.1f'):>8}")
+                         f"{_num(db, '+.1f'):>9}")
         flag = "  UNSTABLE" if r.get("stability", {}).get("unstable") else ""
         lines.append(f"{r['mode']:<10}" + "".join(cells) + flag)
     return "\n".join(lines)

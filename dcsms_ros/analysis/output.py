@@ -123,8 +123,8 @@ def _fmt(x: Any, spec: str) -> str:
 
 
 def _md_table4(s: Summary) -> str:
-    head = "| mode | " + " | ".join(f"{a.upper()} normalized | 95 % interval | {a.upper()} dB"
-                                    for a in s.axes)
+    head = "| mode | " + " | ".join(f"{a.upper()} normalized | 95 % interval | "
+                                    f"{a.upper()} attenuation (dB)" for a in s.axes)
     rows = [head + " | stability |", "|---|" + "---:|---:|---:|" * len(s.axes) + "---|"]
     for seg in s.segments:
         cells = []
