@@ -2,12 +2,11 @@
 (Brent's method) and a derivative-free minimum (Nelder-Mead).
 
 Why not ``scipy.optimize``: every process that holds the stability guard (each controller,
-``mode_switch``) and ``dcsms up`` itself imports the margins, and ``scipy.optimize`` adds
-~0.35 s of CPU to each start (its linear programming, FFT and special-function modules come
-with it): ~1.7 s of CPU, most of it in parallel on two cores, of a one-process-per-node graph
-whose start is bound by its imports. The margins need one root between two grid points and a
-minimum over at most a few variables, which these plain versions give
-(``test/core/test_solvers.py`` compares them with scipy's).
+``mode_switch``) imports the margins, and ``scipy.optimize`` adds ~0.35 s of CPU to each start
+(its linear programming, FFT and special-function modules come with it): ~1.4 s of CPU on two
+cores for a one-process-per-node graph whose start is bound by its imports. The margins need
+one root between two grid points and a minimum over at most a few variables, which these plain
+versions give (``test/core/test_solvers.py`` compares them with scipy's).
 """
 
 from __future__ import annotations
