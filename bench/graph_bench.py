@@ -257,7 +257,7 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
                   "note": f"late {r['late']} of {samples + r['overruns']} deadlines, stale forces "
                           f"{r['stale']} of {samples * r['controllers']}; "
                           f"{_recorded(r, samples)}; --rt-priority {0 if smoke else 50}"
-                          + (COMPOSED_LATE_WHY if r["late"] > 1e-3 * samples else "")})
+                          + (COMPOSED_LATE_WHY if late > 1e-3 else "")})
     rt.insert(2, floor)
     rows += rt
     rows.append(_demo_row(smoke, tmp))
