@@ -136,32 +136,45 @@ class RunSummary:
                 f"{self.stale}, control latency p50/p99 {_ms(self.latency_p50_s)}/"
                 f"{_ms(self.latency_p99_s)} ms, {rec}")
 
+    @property
+    def lost(self) -> int:
+        """Messages the streams' publishers published that the bag lacks (0: none, or not
+        known)."""
+        if self.recorded is None or self.published is None:
+            return 0
+        return max(self.published - self.recorded, 0)
+
     def warning(self, composed: bool = False) -> str | None:
         """A warning when, in real time, more than :data:`LATE_WARN` of the samples missed
         their deadline (the loop that ran had more delay than the one configured, so its
         spectra are not the configuration's) or more than :data:`STALE_WARN` of the forces
-        were stale (the loop was open that often); None otherwise. ``composed``: the run was
-        composed already (the hint names only lockstep)."""
-        if self.lockstep or not self.samples:
-            return None
+        were stale (the loop was open that often), and, in any schedule, when the bag lacks
+        messages that were published (what is analysed of it is not the whole run); None
+        otherwise. ``composed``: the run was composed already (the hints say less)."""
         out = []
-        if self.late_fraction > LATE_WARN:
-            out.append(f"{100.0 * self.late_fraction:.3g} % of the samples missed their "
-                       f"deadline: this machine did not keep the graph in real time, and the "
-                       f"loop that ran had more delay than the configured one")
-        if self.forces and self.stale > STALE_WARN * self.forces:
-            out.append(f"{100.0 * self.stale / self.forces:.3g} % of the controllers' forces "
-                       f"came after control.input_timeout_s and counted as zero: the loop was "
-                       f"open that often")
-        if not out:
-            return None
-        hint = ("--lockstep runs it at any speed" if composed else
-                "--composed runs the control path in one process, --lockstep at any speed")
-        return f"{'; '.join(out)} ({hint})"
+        if not self.lockstep and self.samples:
+            if self.late_fraction > LATE_WARN:
+                out.append(f"{100.0 * self.late_fraction:.3g} % of the samples missed their "
+                           f"deadline: this machine did not keep the graph in real time, and "
+                           f"the loop that ran had more delay than the configured one")
+            if self.forces and self.stale > STALE_WARN * self.forces:
+                out.append(f"{100.0 * self.stale / self.forces:.3g} % of the controllers' "
+                           f"forces came after control.input_timeout_s and counted as zero: "
+                           f"the loop was open that often")
+        if out:
+            hint = ("--lockstep runs it at any speed" if composed else
+                    "--composed runs the control path in one process, --lockstep at any speed")
+            out[-1] += f" ({hint})"
+        if self.lost and self.published:
+            out.append(f"the bag lacks {self.lost} of the {self.published} messages published "
+                       f"({100.0 * self.lost / self.published:.3g} %): the recorder did not "
+                       f"keep up (--record-topics with fewer topics lightens it"
+                       f"{'' if composed else '; --composed records in the process'})")
+        return "; ".join(out) or None
 
     def to_dict(self) -> dict[str, Any]:
-        """The fields, and the late fraction."""
-        return {**asdict(self), "late_fraction": self.late_fraction}
+        """The fields, the late fraction and the messages the bag lacks."""
+        return {**asdict(self), "late_fraction": self.late_fraction, "lost": self.lost}
 
 
 def _ms(s: float) -> str:

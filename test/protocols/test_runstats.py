@@ -117,3 +117,30 @@ def test_late_fraction_of_a_plant_that_fell_behind_stays_a_fraction() -> None:
     warning = s.warning()
     assert warning is not None and warning.startswith("59.5 % of the samples missed")
     assert summarize({"sample": "0", "schedule": "realtime"}, None, []).late_fraction == 0.0
+
+
+@pytest.mark.parametrize(("schedule", "composed"), [("realtime", False), ("lockstep", True)])
+def test_a_bag_that_lacks_published_messages_warns_in_any_schedule(schedule: str,
+                                                                   composed: bool) -> None:
+    """The user's per-process run of 2026-11-28 printed "recorded 71951 of 407353 messages"
+    and no warning; the bag lacked 82 %. A loss warns, with its count and share, after the
+    timing's own warning and hint; a complete bag, or one whose publications are not known,
+    does not."""
+    plant = {"sample": "40000", "schedule": schedule, "late_steps": "1050",
+             "stale_samples": "36489", "controllers": "3"}
+    counts = {"/a": 40000, "/b": 31951}
+    s = summarize(plant, counts, ["/a", "/b"], {"/a": 367353, "/b": 40000})
+    assert s.lost == 335402 and s.to_dict()["lost"] == 335402
+    w = s.warning(composed=composed)
+    assert w is not None and w.count("\n") == 0
+    assert w.endswith("the bag lacks 335402 of the 407353 messages published (82.3 %): the "
+                      "recorder did not keep up (--record-topics with fewer topics lightens "
+                      f"it{'' if composed else '; --composed records in the process'})")
+    if schedule == "realtime":  # the timing's hint stays with the timing
+        assert w.index("missed their deadline") < w.index("--lockstep") < w.index("lacks")
+    whole = summarize(plant, {"/a": 40000}, ["/a"], {"/a": 40000})
+    assert whole.lost == 0 and "lacks" not in (whole.warning() or "")
+    unknown = summarize(plant, counts, ["/a", "/b"], None)
+    assert unknown.lost == 0 and "lacks" not in (unknown.warning() or "")
+    assert summarize({**plant, "schedule": "lockstep"}, {"/a": 40000}, ["/a"],
+                     {"/a": 40000}).warning() is None
