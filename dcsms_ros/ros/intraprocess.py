@@ -86,6 +86,11 @@ class BusPublisher(_Wrapped):
         # loop that publishes, as DirectPublisher's does
         self._matched = pub.handle.get_subscription_count
 
+    def get_subscription_count(self) -> int:
+        """The DDS writer's matched readers, this process's own included (the handle's count,
+        as :meth:`remote` asks it: the plant asks it per sample and stream)."""
+        return int(self._matched())
+
     def remote(self) -> bool:
         """True while a reader outside this process is matched."""
         return self.bus.remote(self.writer.name, self._matched())

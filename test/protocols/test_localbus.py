@@ -62,25 +62,31 @@ def test_lockstep_cycle_is_delivered_in_publication_order_without_recursion() ->
     assert bus.published("/raw") == bus.published("/vel") == 1000
 
 
+@pytest.mark.parametrize("per_topic", [1, 2])
 @pytest.mark.parametrize("batch", [1, 5, 64])
-def test_observers_get_every_message_once_in_order_after_the_control_path(batch: int) -> None:
-    """An observer of every topic sees each message once, with its writer's sequence number
-    1, 2, ... and its publication time; at most ``batch`` deliveries wait behind handlers."""
+def test_observers_get_every_message_once_in_order_after_the_control_path(
+        batch: int, per_topic: int) -> None:
+    """Each observer of every topic (one, the recorder, or two) sees each message once, with
+    its writer's sequence number 1, 2, ... and its publication time; at most ``batch``
+    deliveries wait behind handlers."""
     clock = Ticks()
     bus = LocalBus(clock=clock, observer_batch=batch)
     log: list[tuple[str, bytes]] = []
-    seen: dict[str, list[tuple[bytes, int, int]]] = {}
+    seen: dict[tuple[str, int], list[tuple[bytes, int, int]]] = {}
     waiting: list[int] = []
-    for t in ("/raw", "/vel", "/force/a", "/force/b"):
-        bus.observe(t, lambda d, s, ns, t=t: seen.setdefault(t, []).append((d, s, ns)))
+    topics = ("/raw", "/vel", "/force/a", "/force/b")
+    for t in topics:
+        for i in range(per_topic):
+            bus.observe(t, lambda d, s, ns, k=(t, i): seen.setdefault(k, []).append((d, s, ns)))
     _cycle(bus, 200, log)
     bus.subscribe("/raw", lambda d: waiting.append(bus.backlog))
     while bus.pending:
         bus.dispatch()
-    for t in ("/raw", "/vel", "/force/a", "/force/b"):
-        assert [d for d, _, _ in seen[t]] == [b"%d" % k for k in range(200)], t
-        assert [s for _, s, _ in seen[t]] == list(range(1, 201)), t
-        stamps = [ns for _, _, ns in seen[t]]
+    assert sorted(seen) == sorted((t, i) for t in topics for i in range(per_topic))
+    for k, got in seen.items():
+        assert [d for d, _, _ in got] == [b"%d" % n for n in range(200)], k
+        assert [s for _, s, _ in got] == list(range(1, 201)), k
+        stamps = [ns for _, _, ns in got]
         assert stamps == sorted(stamps) and len(set(stamps)) == 200
     assert max(waiting) < batch  # a full batch is served before the next handler runs
 
