@@ -157,9 +157,9 @@ class PlantSimulatorNode(GraphNode, Hosted):
             if not self.io.handshake(now):
                 return
             self.started = True
-            self.pacer.start(now)
             if self.hot.on:
-                self._tick_timer.cancel()  # the hot loop steps from here on
+                # the hot loop steps from here on; its first step starts the schedule
+                self._tick_timer.cancel()
                 self.hot.wake()
                 return
         if not self.lockstep:

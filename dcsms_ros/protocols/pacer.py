@@ -1,6 +1,9 @@
 """Real-time pacing of the plant: deadlines, overruns, and held inputs that go stale.
 
-Sample k is due at ``t0 + k / rate``. A sample computed once the next one is due already
+Sample k is due at ``t0 + k / rate``, ``t0`` the first time the loop asks what is due (or an
+explicit :meth:`Pacer.start`): a schedule started in another thread than the one that keeps it
+was ~3 ms old when the loop first ran, and its first 7-14 samples counted late in every composed
+run (docs/performance.md). A sample computed once the next one is due already
 (the plant woke more than a period late and catches up) is *late*: it reaches the controllers
 after its deadline, and a keep-last-1 reader then answers only the newest of the burst. A plant
 that fell more than ``max_burst`` samples behind does not catch up in a burst: the backlog is
@@ -26,6 +29,8 @@ class Pacer:
         self.rate = float(rate_hz)
         self.max_burst = max_burst
         self.t0 = 0.0
+        #: whether the schedule has started (:meth:`start`, or the first :meth:`due`)
+        self.started = False
         #: samples dropped from a backlog of more than ``max_burst``
         self.overruns = 0
         #: samples computed in a catch-up burst, after the next sample was due
@@ -34,9 +39,13 @@ class Pacer:
     def start(self, now: float) -> None:
         """Sample 0 is due at ``now`` (s)."""
         self.t0 = now
+        self.started = True
 
     def due(self, now: float, k: int) -> int:
-        """How many samples to compute at ``now`` (s) when ``k`` are done."""
+        """How many samples to compute at ``now`` (s) when ``k`` are done; the first call of a
+        pacer not started makes sample ``k`` due at ``now``."""
+        if not self.started:
+            self.start(now - k / self.rate)
         due = int((now - self.t0) * self.rate) + 1 - k
         if due > self.max_burst:
             # too far behind to catch up without a burst: drop the backlog, count it

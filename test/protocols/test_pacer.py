@@ -23,6 +23,21 @@ def test_deadlines_and_a_dropped_backlog() -> None:
     assert math.isclose(p.wait_s(100.5, 12), 0.001, abs_tol=1e-9)
 
 
+@pytest.mark.parametrize("k0", [0, 7])
+def test_the_schedule_starts_when_the_loop_first_asks(k0: int) -> None:
+    """Not started, the first due() makes sample k due then: a loop that first runs 3 ms after
+    the handshake computes one sample, none late; started at the handshake it caught up
+    with a burst of late ones."""
+    p = Pacer(2000.0)
+    assert not p.started
+    assert p.due(10.003, k0) == 1 and p.started and p.late == 0
+    assert math.isclose(p.wait_s(10.003, k0 + 1), 0.0005)
+    assert p.due(10.0035, k0 + 1) == 1 and p.late == 0
+    early = Pacer(2000.0)
+    early.start(10.0)
+    assert early.due(10.003, 0) == 7 and early.late == 6
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_late_counts_the_samples_computed_after_the_next_was_due(seed: int) -> None:
     """A plant that wakes with random delays: ``late`` is the number of samples it computed
