@@ -221,7 +221,9 @@ def write_timeseries(bag: str | Path, out: Path, names: Sequence[str] | None, fm
         raise DcsmsError(f"--format {fmt!r}: expected one of {', '.join(SERIES_FORMATS)}")
     series, modes = read_topics(bag, names, progress, strict)
     if not series:
-        raise DcsmsError(f"{bag}: no TwistStamped, WrenchStamped or JointState topic to export")
+        searched = f" among {' '.join(names)}" if names is not None else ""
+        raise DcsmsError(f"{bag}: no TwistStamped, WrenchStamped or JointState topic to "
+                         f"export{searched} (--topics names others)")
     t0 = min((int(s.stamp_ns[0]) for s in series.values() if s.stamp_ns.size), default=0)
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -14,6 +14,7 @@ from rosbags.typesys import Stores, get_typestore
 from scipy import io as sio
 from scipy import signal
 
+from dcsms_ros.analysis.mcapwrite import McapBagWriter
 from dcsms_ros.cli import main
 
 # every test here reads bags of 20-60 s runs made by session fixtures
@@ -222,3 +223,28 @@ def test_analysis_reports_what_each_segment_estimates(exported: dict) -> None:
     assert doc["segments"][2]["axes"]["z"]["normalized"] == 1.0  # the quiet one is Table 4's
     md = (exported["npz"] / "report.md").read_text()
     assert "## What each segment can estimate" in md and "compared bins (of band)" in md
+
+
+def test_export_of_a_bag_without_the_default_topics_names_them(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A bag holding only a user's TwistStamped topic: the default selection finds nothing,
+    and the one-line error says what it looked for and how to choose."""
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    twist = ts.types["geometry_msgs/msg/TwistStamped"]
+    header = ts.types["std_msgs/msg/Header"]
+    stamp = ts.types["builtin_interfaces/msg/Time"]
+    vec = ts.types["geometry_msgs/msg/Vector3"]
+    msg = twist(header(stamp(0, 0), "base"),
+                ts.types["geometry_msgs/msg/Twist"](vec(0.0, 0.0, 1e-6), vec(0.0, 0.0, 0.0)))
+    bag = tmp_path / "user"
+    w = McapBagWriter(bag)
+    w.add_topic("/dcsms/user/twist", "geometry_msgs/msg/TwistStamped")
+    w.write("/dcsms/user/twist", 1, bytes(ts.serialize_cdr(msg, twist.__msgtype__)))
+    w.close()
+    out = tmp_path / "x"
+    assert main(["export", str(bag), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "/dcsms/velocity/*" in err and "--topics" in err
+    assert not out.exists()
+    assert main(["export", str(bag), "--out", str(out), "--topics", "/dcsms/user/*"]) == 0
+    assert (out / "user_twist.csv").exists()
