@@ -197,7 +197,7 @@ def _read(reader: Any, path: Path, progress: Progress | None, chunk: int) -> Bag
         data.applied = sinks[topics.ACTUATORS_APPLIED].result()
     if topics.EXCITATION in sinks:
         data.excitation = sinks[topics.EXCITATION].result()
-    data.modes = _place_modes(mode_log, data.bodies[ref_body])
+    data.modes = place_modes(mode_log, data.bodies[ref_body])
     for s in sinks.values():
         if s.fallback:
             data.warnings.append(f"{s.conn.topic}: {s.fallback} chunk(s) decoded by the slow "
@@ -321,12 +321,12 @@ def read_topics(path: str | Path, names: Iterable[str] | None = None,
             wanted.update({c.topic: c for c in num})
         wanted.update({c.topic: c for c in conns
                        if c.topic == topics.MODE and c.msgtype == cdr.STRING})
-        sinks = {t: TopicSink(c, keep_log=False, full=True) for t, c in wanted.items()
+        sinks = {t: TopicSink(c, keep_log=True, full=True) for t, c in wanted.items()
                  if c.msgtype != cdr.STRING}
         total = sum(c.msgcount for c in wanted.values())
         if not _read_chunks(reader, wanted, sinks, on_text, progress, total):
             modes.clear()
-            sinks = {t: TopicSink(s.conn, False, full=True) for t, s in sinks.items()}
+            sinks = {t: TopicSink(s.conn, True, full=True) for t, s in sinks.items()}
             _read_messages(reader, wanted, sinks, on_text, progress, total, 50_000)
         return {t: s.result() for t, s in sorted(sinks.items())}
 
@@ -334,7 +334,7 @@ def read_topics(path: str | Path, names: Iterable[str] | None = None,
     return series, sorted(modes)
 
 
-def _place_modes(mode_log: Iterable[tuple[int, str]], ref: TopicSeries) -> list[ModeEvent]:
+def place_modes(mode_log: Iterable[tuple[int, str]], ref: TopicSeries) -> list[ModeEvent]:
     """Map each switch's bag time to the header stamp of the first reference sample after it.
 
     String has no header, so a switch only has its bag (receive) time; when the recorder runs
@@ -355,5 +355,5 @@ def _place_modes(mode_log: Iterable[tuple[int, str]], ref: TopicSeries) -> list[
     return out
 
 
-__all__ = ["CONFIG_TOPIC", "BagData", "ModeEvent", "config_from_yaml", "config_to_yaml", "read_bag",
-           "read_topics"]
+__all__ = ["CONFIG_TOPIC", "BagData", "ModeEvent", "config_from_yaml", "config_to_yaml",
+           "place_modes", "read_bag", "read_topics"]

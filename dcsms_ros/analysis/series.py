@@ -141,10 +141,14 @@ class TopicSink:
         log = None if self.log_ns is None else self.log_ns[:self.k]
         if stamp.size > 1:
             # a lockstep retransmission repeats the sample just sent (same stamp, same
-            # numbers): one sample, not two, for the estimators' uniform time axis
+            # numbers): one sample, not two, for the estimators' uniform time axis; a
+            # publisher whose stamps do not advance (left zero) sends new numbers each time,
+            # and the stamp alone made 20,000 of them one row
             keep = np.empty(stamp.size, dtype=bool)
             keep[0] = True
             np.not_equal(stamp[1:], stamp[:-1], out=keep[1:])
+            if not keep.all():
+                keep[1:] |= (vals[1:] != vals[:-1]).any(axis=1)
             if not keep.all():
                 stamp, vals = stamp[keep], vals[keep]
                 log = None if log is None else log[keep]

@@ -24,7 +24,8 @@ Time series (``dcsms export BAG``): every component of each chosen topic in SI u
 with ``<name>_t_s`` (s from the bag's first stamp), ``<name>_stamp_ns`` and ``<name>_<column>``
 (``vx``… ``wz``, ``fx``… ``mz``, ``effort_<joint>``…) where ``<name>`` is the topic without
 ``/dcsms/`` and with ``/`` -> ``_``; ``csv`` one file per topic, plus ``mode.csv`` (the mode
-timeline). Every file is written under a temporary name and renamed when complete, so a
+timeline: each switch at the stamp of the first sample recorded after it, on the same ``t_s``
+axis). Every file is written under a temporary name and renamed when complete, so a
 failure leaves no half-written table.
 """
 
@@ -42,7 +43,7 @@ import numpy as np
 from scipy.io import savemat
 
 from dcsms_ros.analysis import estimators as est
-from dcsms_ros.analysis.reader import read_topics
+from dcsms_ros.analysis.reader import place_modes, read_topics
 from dcsms_ros.analysis.series import column_unit
 from dcsms_ros.errors import DcsmsError
 
@@ -225,6 +226,11 @@ def write_timeseries(bag: str | Path, out: Path, names: Sequence[str] | None, fm
         raise DcsmsError(f"{bag}: no TwistStamped, WrenchStamped or JointState topic to "
                          f"export{searched} (--topics names others)")
     t0 = min((int(s.stamp_ns[0]) for s in series.values() if s.stamp_ns.size), default=0)
+    # a switch has only its bag time (String has no header): placed on the data's own time
+    # axis through the longest topic's bag times, as the analysis does; exported as bag time,
+    # a graph run's switches came out ~1.8e9 s (wall clock) against stamps from 0 (sim time)
+    ref = max(series.values(), key=lambda s: s.stamp_ns.size)
+    switches = [(ev.stamp_ns, ev.label) for ev in place_modes(modes, ref)]
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -246,14 +252,14 @@ def write_timeseries(bag: str | Path, out: Path, names: Sequence[str] | None, fm
         columns = [t, s.stamp_ns, *(s.values[:, j] for j in range(s.values.shape[1]))]
         files.append(_write_csv(out / f"{name}.csv", header, columns,
                                 ["%.9f", "%d"] + ["%.17g"] * s.values.shape[1]))
+    mode_t = np.array([(t - t0) * 1e-9 for t, _ in switches], dtype=np.float64)
+    mode_label = np.array([m for _, m in switches], dtype=str)
     if fmt == "npz":
-        arrays["mode_t_s"] = np.array([(t - t0) * 1e-9 for t, _ in modes])
-        arrays["mode_label"] = np.array([m for _, m in modes], dtype=str)
+        arrays["mode_t_s"] = mode_t
+        arrays["mode_label"] = mode_label
         files.append(_save_arrays(out / "timeseries.npz", "npz", arrays))
     else:
-        files.append(_write_csv(out / "mode.csv", ["t_s [s]", "mode"],
-                                [np.array([(t - t0) * 1e-9 for t, _ in modes]),
-                                 np.array([m for _, m in modes], dtype=str)],
+        files.append(_write_csv(out / "mode.csv", ["t_s [s]", "mode"], [mode_t, mode_label],
                                 ["%.9f", "%s"]))
     return files
 

@@ -248,3 +248,51 @@ def test_export_of_a_bag_without_the_default_topics_names_them(
     assert not out.exists()
     assert main(["export", str(bag), "--out", str(out), "--topics", "/dcsms/user/*"]) == 0
     assert (out / "user_twist.csv").exists()
+
+
+def test_export_places_switches_on_the_stamp_axis_and_keeps_zero_stamped_rows(
+        tmp_path: Path) -> None:
+    """A graph bag: stamps in simulated time from 0, bag times on the wall clock (~1.8e18
+    ns). The switches (String, bag time only) must land on the samples' own ``t_s`` axis;
+    they came out at ~1.8e9 s. A user topic whose stamps stay zero keeps every message that
+    differs (the stamp alone made them one row)."""
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    T = ts.types
+    twist_t = T["geometry_msgs/msg/TwistStamped"]
+
+    def twist(stamp_ns: int, vz: float) -> bytes:
+        sec, nsec = divmod(stamp_ns, 10**9)
+        msg = twist_t(T["std_msgs/msg/Header"](T["builtin_interfaces/msg/Time"](sec, nsec),
+                                                "stage2"),
+                      T["geometry_msgs/msg/Twist"](T["geometry_msgs/msg/Vector3"](0, 0, vz),
+                                                   T["geometry_msgs/msg/Vector3"](0, 0, 0)))
+        return bytes(ts.serialize_cdr(msg, twist_t.__msgtype__))
+
+    def text(label: str) -> bytes:
+        s = T["std_msgs/msg/String"](label)
+        return bytes(ts.serialize_cdr(s, "std_msgs/msg/String"))
+
+    wall = 1_795_000_000 * 10**9
+    bag = tmp_path / "graph"
+    w = McapBagWriter(bag)
+    w.add_topic("/dcsms/velocity/stage2", twist_t.__msgtype__)
+    w.add_topic("/dcsms/mode", "std_msgs/msg/String")
+    w.add_topic("/dcsms/user/twist", twist_t.__msgtype__)
+    w.write("/dcsms/mode", wall - 10**8, text("DFBC+FFC"))
+    for k in range(1000):
+        log = wall + k * 10**6 + 200_000
+        if k == 500:
+            w.write("/dcsms/mode", log - 100_000, text("Passive"))
+        w.write("/dcsms/velocity/stage2", log, twist(k * 10**6, 1e-6 * k))
+        if k < 3:
+            w.write("/dcsms/user/twist", log + 1, twist(0, float(k)))
+    w.close()
+    out = tmp_path / "x"
+    assert main(["export", str(bag), "--out", str(out), "--topics", "/dcsms/velocity/*",
+                 "/dcsms/user/*"]) == 0
+    with open(out / "mode.csv", newline="") as fh:
+        rows = list(csv.reader(fh))[1:]
+    assert [r[1] for r in rows] == ["DFBC+FFC", "Passive"]
+    np.testing.assert_allclose([float(r[0]) for r in rows], [0.0, 0.5])
+    user = np.loadtxt(out / "user_twist.csv", delimiter=",", skiprows=1)
+    np.testing.assert_array_equal(user[:, 4], [0.0, 1.0, 2.0])
