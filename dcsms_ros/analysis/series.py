@@ -35,7 +35,8 @@ class TopicSeries:
         Names of the n columns (``x y z``, ``x y z rx ry rz`` or joint names).
     frame_id : str
     log_ns : ndarray of int64, shape (K,) or None
-        Bag (receive) time; kept for the reference topic only, to place mode switches.
+        Bag (receive) time, kept to place mode switches: the analysis keeps it for its
+        reference topic, :func:`~.reader.read_topics` for every topic.
     """
 
     topic: str
