@@ -264,6 +264,8 @@ class ControllerNode(GraphNode, Hosted):
                 "saturations": self.loop.saturations, "nonfinite_inputs": self.loop.nonfinite,
                 "nonfinite_outputs": self.nonfinite_out, "rejected_inputs": self.guard.rejected,
                 "stale_at_mono_ns": self.stale_at_mono_ns,
+                "last_input_mono_ns": int((self.watchdog.last or 0.0) * 1e9),
+                "last_answer_ns": self.answers.last_ns,
                 "params_changed_at_ns": self.changed_at_ns,
                 "stale_events": self.watchdog.stale_events, "boot_ns": self.boot_ns})])
 

@@ -100,7 +100,7 @@ class Graph:
     def __init__(self, cfg: SystemConfig, tmp: Path, schedule: str = "realtime",
                  mode: Mode = Mode.DFBC_FFC, duration_s: float = 0.0,
                  extra: dict[str, dict[str, Any]] | None = None,
-                 allow_unstable: bool = False) -> None:
+                 allow_unstable: bool = False, rt_priority: int = 0) -> None:
         self.cfg, self.mode, self.tmp = cfg, mode, tmp
         spec = define_graph(cfg, schedule=schedule, mode=mode, duration_s=duration_s,
                             allow_unstable=allow_unstable)
@@ -108,7 +108,7 @@ class Graph:
             spec = spec.with_params(node, **values)
         self.params = tmp / "params.yaml"
         self.params.write_text(yaml.safe_dump(spec.params_document(), sort_keys=False))
-        self.kids = {k.name: k for k in children(spec, self.params)}
+        self.kids = {k.name: k for k in children(spec, self.params, rt_priority)}
         self.env = child_env()
         for kid in self.kids.values():
             self.start(kid.name)
@@ -120,7 +120,8 @@ class Graph:
         with kid.log.open("ab") as out:
             kid.proc = subprocess.Popen([*kid.argv, *extra_args], stdout=out,
                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                        env=self.env, start_new_session=True)
+                                        env={**self.env, **kid.env},
+                                        start_new_session=True)
 
     def plant_param(self, name: str, default: Any) -> Any:
         """The plant's value of node parameter ``name`` (as set here, else its default)."""
