@@ -345,13 +345,18 @@ def place_modes(mode_log: Iterable[tuple[int, str]], ref: TopicSeries) -> list[M
     log = ref.log_ns
     if log is None or log.size == 0:
         return out
+    # rows are in stamp order; a publisher that reordered its stamps leaves the bag times
+    # unsorted, and the first sample recorded after a switch is the first in bag time
+    order = np.argsort(log, kind="stable") if np.any(np.diff(log) < 0) else None
+    by_log = log if order is None else log[order]
     for t_ns, label in sorted(mode_log):
-        i = int(np.searchsorted(log, t_ns, side="left"))
-        if i >= log.size:
+        i = int(np.searchsorted(by_log, t_ns, side="left"))
+        if i >= by_log.size:
             continue  # switched after the last sample: no data in that mode
         if out and out[-1].label == label:
             continue  # a re-published (latched) label is not a switch
-        out.append(ModeEvent(int(t_ns), int(ref.stamp_ns[i]), label))
+        row = i if order is None else int(order[i])
+        out.append(ModeEvent(int(t_ns), int(ref.stamp_ns[row]), label))
     return out
 
 

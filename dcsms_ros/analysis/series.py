@@ -35,8 +35,9 @@ class TopicSeries:
         Names of the n columns (``x y z``, ``x y z rx ry rz`` or joint names).
     frame_id : str
     log_ns : ndarray of int64, shape (K,) or None
-        Bag (receive) time, kept to place mode switches: the analysis keeps it for its
-        reference topic, :func:`~.reader.read_topics` for every topic.
+        Bag (receive) time of each row, ns, kept to place mode switches: the analysis keeps
+        it for its reference topic, :func:`~.reader.read_topics` for every topic. In the
+        rows' order, so not increasing where the stamps were reordered.
     """
 
     topic: str
@@ -155,9 +156,10 @@ class TopicSink:
                 log = None if log is None else log[keep]
         if stamp.size > 1 and np.any(np.diff(stamp) < 0):
             # Segmentation and alignment search the stamps: order them (a publisher that
-            # reorders, or two recordings merged); the bag times keep their own order.
+            # reorders, or two recordings merged); each row keeps its own bag time
             order = np.argsort(stamp, kind="stable")
             stamp, vals = stamp[order], vals[order]
+            log = None if log is None else log[order]
         return TopicSeries(self.conn.topic, self.conn.msgtype, stamp, vals, self.columns,
                            self.frame_id, log)
 

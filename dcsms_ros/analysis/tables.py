@@ -21,7 +21,8 @@ its coherence; ``_asd.csv``; ``_third_octave.csv``) with the unit of every colum
 (``freq_hz [Hz]``), and ``segments.csv`` lists the segments.
 
 Time series (``dcsms export BAG``): every component of each chosen topic in SI units: ``npz``
-with ``<name>_t_s`` (s from the bag's first stamp), ``<name>_stamp_ns`` and ``<name>_<column>``
+with ``<name>_t_s`` (s from the bag's first stamp), ``<name>_stamp_ns``, ``<name>_log_ns`` (the
+bag's receive time, ns) and ``<name>_<column>``
 (``vx``… ``wz``, ``fx``… ``mz``, ``effort_<joint>``…) where ``<name>`` is the topic without
 ``/dcsms/`` and with ``/`` -> ``_``; ``csv`` one file per topic, plus ``mode.csv`` (the mode
 timeline: each switch at the stamp of the first sample recorded after it, on the same ``t_s``
@@ -241,17 +242,20 @@ def write_timeseries(bag: str | Path, out: Path, names: Sequence[str] | None, fm
         name = series_name(topic)
         t = (s.stamp_ns - t0).astype(np.float64) * 1e-9
         cols = [_column_key(c) for c in s.columns]
+        # the bag time too: the only time of a publisher that leaves its stamps zero
+        log = s.log_ns if s.log_ns is not None else np.zeros_like(s.stamp_ns)
         if fmt == "npz":
             arrays[f"{name}_t_s"] = t
             arrays[f"{name}_stamp_ns"] = s.stamp_ns
+            arrays[f"{name}_log_ns"] = log
             arrays.update({f"{name}_{c}": s.values[:, j] for j, c in enumerate(cols)})
             continue
-        header = ["t_s [s]", "stamp_ns [ns]"] + [
+        header = ["t_s [s]", "stamp_ns [ns]", "log_ns [ns]"] + [
             f"{c} [{column_unit(s.msgtype, raw)}]" for c, raw in zip(cols, s.columns,
                                                                       strict=True)]
-        columns = [t, s.stamp_ns, *(s.values[:, j] for j in range(s.values.shape[1]))]
+        columns = [t, s.stamp_ns, log, *(s.values[:, j] for j in range(s.values.shape[1]))]
         files.append(_write_csv(out / f"{name}.csv", header, columns,
-                                ["%.9f", "%d"] + ["%.17g"] * s.values.shape[1]))
+                                ["%.9f", "%d", "%d"] + ["%.17g"] * s.values.shape[1]))
     mode_t = np.array([(t - t0) * 1e-9 for t, _ in switches], dtype=np.float64)
     mode_label = np.array([m for _, m in switches], dtype=str)
     if fmt == "npz":

@@ -173,13 +173,13 @@ def test_timeseries_export(closed_loop_bag: Path, decoded: dict, tmp_path: Path,
         return
     with open(out / "velocity_stage2.csv", newline="") as fh:
         header = next(csv.reader(fh))
-    assert header == ["t_s [s]", "stamp_ns [ns]", "vx [m/s]", "vy [m/s]", "vz [m/s]",
-                      "wx [rad/s]", "wy [rad/s]", "wz [rad/s]"]
+    assert header == ["t_s [s]", "stamp_ns [ns]", "log_ns [ns]", "vx [m/s]", "vy [m/s]",
+                      "vz [m/s]", "wx [rad/s]", "wy [rad/s]", "wz [rad/s]"]
     table = np.loadtxt(out / "velocity_stage2.csv", delimiter=",", skiprows=1)
-    np.testing.assert_array_equal(table[:, 4], vz)
+    np.testing.assert_array_equal(table[:, 5], vz)
     np.testing.assert_array_equal(table[:, 1].astype(np.int64), stamp)
     with open(out / "force_excitation.csv", newline="") as fh:
-        assert next(csv.reader(fh))[2:5] == ["fx [N]", "fy [N]", "fz [N]"]
+        assert next(csv.reader(fh))[3:6] == ["fx [N]", "fy [N]", "fz [N]"]
     with open(out / "mode.csv", newline="") as fh:
         assert [r[1] for r in csv.reader(fh)][1:] == ["DFBC+FFC", "Passive"]
     assert sorted(p.name for p in out.iterdir()) == ["force_excitation.csv", "mode.csv",
@@ -250,12 +250,9 @@ def test_export_of_a_bag_without_the_default_topics_names_them(
     assert (out / "user_twist.csv").exists()
 
 
-def test_export_places_switches_on_the_stamp_axis_and_keeps_zero_stamped_rows(
-        tmp_path: Path) -> None:
-    """A graph bag: stamps in simulated time from 0, bag times on the wall clock (~1.8e18
-    ns). The switches (String, bag time only) must land on the samples' own ``t_s`` axis;
-    they came out at ~1.8e9 s. A user topic whose stamps stay zero keeps every message that
-    differs (the stamp alone made them one row)."""
+def _graph_messages():
+    """(TwistStamped class, ``twist(stamp_ns, vz)`` and ``text(label)`` serializers) for
+    bags written by hand."""
     ts = get_typestore(Stores.ROS2_JAZZY)
     T = ts.types
     twist_t = T["geometry_msgs/msg/TwistStamped"]
@@ -272,6 +269,16 @@ def test_export_places_switches_on_the_stamp_axis_and_keeps_zero_stamped_rows(
         s = T["std_msgs/msg/String"](label)
         return bytes(ts.serialize_cdr(s, "std_msgs/msg/String"))
 
+    return twist_t, twist, text
+
+
+def test_export_places_switches_on_the_stamp_axis_and_keeps_zero_stamped_rows(
+        tmp_path: Path) -> None:
+    """A graph bag: stamps in simulated time from 0, bag times on the wall clock (~1.8e18
+    ns). The switches (String, bag time only) must land on the samples' own ``t_s`` axis;
+    they came out at ~1.8e9 s. A user topic whose stamps stay zero keeps every message that
+    differs (the stamp alone made them one row)."""
+    twist_t, twist, text = _graph_messages()
     wall = 1_795_000_000 * 10**9
     bag = tmp_path / "graph"
     w = McapBagWriter(bag)
@@ -294,5 +301,37 @@ def test_export_places_switches_on_the_stamp_axis_and_keeps_zero_stamped_rows(
         rows = list(csv.reader(fh))[1:]
     assert [r[1] for r in rows] == ["DFBC+FFC", "Passive"]
     np.testing.assert_allclose([float(r[0]) for r in rows], [0.0, 0.5])
-    user = np.loadtxt(out / "user_twist.csv", delimiter=",", skiprows=1)
-    np.testing.assert_array_equal(user[:, 4], [0.0, 1.0, 2.0])
+    user = np.loadtxt(out / "user_twist.csv", delimiter=",", skiprows=1, dtype=object)
+    np.testing.assert_array_equal(user[:, 5].astype(float), [0.0, 1.0, 2.0])
+    # their only time: the bag's, exact to the nanosecond
+    np.testing.assert_array_equal(user[:, 2].astype(np.int64),
+                                  [wall + k * 10**6 + 200_001 for k in range(3)])
+
+
+def test_export_of_reordered_stamps_keeps_each_rows_bag_time(tmp_path: Path) -> None:
+    """A publisher that swaps each pair of stamps: rows come out in stamp order, each with its
+    own bag time, and a switch lands at the stamp of the first sample recorded after it (the
+    bag times were left in arrival order against rows sorted by stamp)."""
+    twist_t, twist, text = _graph_messages()
+    bag = tmp_path / "swapped"
+    w = McapBagWriter(bag)
+    w.add_topic("/dcsms/velocity/stage2", twist_t.__msgtype__)
+    w.add_topic("/dcsms/mode", "std_msgs/msg/String")
+    wall = 1_795_000_000 * 10**9
+    sent = [k + 1 if k % 2 == 0 else k - 1 for k in range(100)]  # 1, 0, 3, 2, ...
+    w.write("/dcsms/mode", wall - 10**8, text("FBC"))
+    for i, k in enumerate(sent):
+        if i == 51:  # before the 52nd message, the one of stamp 50
+            w.write("/dcsms/mode", wall + i * 10**6 - 1, text("Passive"))
+        w.write("/dcsms/velocity/stage2", wall + i * 10**6, twist(k * 10**6, float(k)))
+    w.close()
+    out = tmp_path / "x"
+    assert main(["export", str(bag), "--out", str(out), "--format", "npz"]) == 0
+    d = np.load(out / "timeseries.npz")
+    np.testing.assert_array_equal(d["velocity_stage2_stamp_ns"], np.arange(100) * 10**6)
+    np.testing.assert_array_equal(d["velocity_stage2_vz"], np.arange(100.0))
+    arrival = {k: wall + i * 10**6 for i, k in enumerate(sent)}
+    np.testing.assert_array_equal(d["velocity_stage2_log_ns"], [arrival[k] for k in range(100)])
+    assert list(d["mode_label"]) == ["FBC", "Passive"]
+    # the first message recorded after each switch: stamp 1 ms (sent first), stamp 50 ms
+    np.testing.assert_allclose(d["mode_t_s"], [0.001, 0.050])
