@@ -16,7 +16,11 @@ model calls unstable in the active mode is rejected (:mod:`.stability`).
 
 Real time only: a :class:`~dcsms_ros.protocols.pacer.Watchdog` publishes zero force while no
 input arrived for ``control.input_timeout_s`` (steady wall clock; on the hot thread, whose wait
-ends at the deadline, else a timer). In lockstep the plant's own timeout covers a silent input.
+ends at the deadline, else a timer). With another actuator node than the simulated plant
+(``force_reader``: a rig's driver), an input that comes more than that later than the
+fastest recent delivery is answered with zero force (:mod:`~dcsms_ros.protocols.inputage`:
+a stalled or starved path must not drive a rig's actuators with old velocities; the plant
+ages every force itself). In lockstep the plant's own timeout covers a silent input.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from dcsms_ros.core.controllers import make_controller, retuned
 from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.protocols.gate import MATCH_TIMEOUT_S
+from dcsms_ros.protocols.inputage import InputAge
 from dcsms_ros.protocols.pacer import Watchdog
 from dcsms_ros.protocols.responder import skipped
 from dcsms_ros.ros import qos
@@ -98,7 +103,9 @@ class ControllerNode(GraphNode, Hosted):
                                           "actuator node; the plant (default) says when it "
                                           "took a force, another node's reader of the force "
                                           "topic must be matched before the loop starts "
-                                          "(empty: any reader)")
+                                          "(empty: any reader), and an input that comes "
+                                          "control.input_timeout_s later than the fastest "
+                                          "delivery gets zero force")
         enabled = declare_local(self, "enabled", False, "Start enabled at full gain (no fade), "
                                 "as the batch engine starts its initial mode")
         self.observed = declare_observed(self)
@@ -132,12 +139,16 @@ class ControllerNode(GraphNode, Hosted):
         self._log_back = Throttled(log, 2.0, LoggingSeverity.INFO)
         self._log_seen = Throttled(log, 2.0)
         self._log_stale = Throttled(log, 2.0)
+        self._log_old = Throttled(log, 2.0)
         self.boot_ns = time.time_ns()  # tells mode_switch a restarted process from the old one
         self.pub_boot = self.create_publisher(Int64, topics.LOCAL.boot(cid), qos.latched())
         self.pub_boot.publish(Int64(data=self.boot_ns))
         # real time: the plant echoes this boot once it took a force of this process
         self.heard = (HeardBy(self, cid, self.boot_ns)
                       if not self.lockstep and self.force_reader == topics.PLANT_ID else None)
+        # real time against a rig's actuator driver: inputs that come late get zero force
+        self.age = (InputAge(cfg.control.input_timeout_s)
+                    if not self.lockstep and self.force_reader != topics.PLANT_ID else None)
         # real time: the loop is stepped (its fade runs) only once its output reaches the plant
         self._linked = self.lockstep
         self._link_check_ns = -1
@@ -174,7 +185,8 @@ class ControllerNode(GraphNode, Hosted):
             cap = round(self.watchdog.timeout_s * self.rate) if self.loop.enabled else 100_000
             for _ in range(skipped(last, ns, self.rate, cap)):
                 self.loop.fader.step()
-        if self.watchdog.feed(time.monotonic()):
+        now_ns = time.monotonic_ns()
+        if self.watchdog.feed(now_ns * 1e-9):
             self._log_back(lambda: f"{self.cid}: input is back")
         if not self._linked and self._reaches_actuators(ns):
             self._linked = True
@@ -183,6 +195,14 @@ class ControllerNode(GraphNode, Hosted):
         if not all(map(math.isfinite, w.tolist())):  # a NaN must never reach an actuator
             self.nonfinite_out += 1
             w = self._zero
+        age = self.age
+        if age is not None and not age.fresh(ns, now_ns):
+            # the loop stepped (its filters follow the input), its force is withheld
+            w = self._zero
+            self._log_old(lambda: f"{self.cid}: input {age.worst_s * 1e3:.1f} ms (worst) "
+                                  f"later than the fastest delivery, limit "
+                                  f"{age.limit_s * 1e3:g} ms: zero force (totals: "
+                                  f"{age.old} inputs)")
         self.answers.reply(ns, self.writer.encode(ns, w))
         self.samples += 1
         seen = (self.loop.nonfinite, self.loop.saturations)
@@ -247,6 +267,8 @@ class ControllerNode(GraphNode, Hosted):
     def _on_change_locked(self, cfg: SystemConfig, changed: set[str]) -> None:
         with self._lock:
             self.watchdog.timeout_s = cfg.control.input_timeout_s
+            if self.age is not None:
+                self.age.limit_s = cfg.control.input_timeout_s
             self.changed_at_ns = self.answers.last_ns  # newest sample before the change
             self.loop = retuned(self.loop, cfg, self.cid,
                                 keep_fade="control.fade_time_s" not in changed)
@@ -267,7 +289,18 @@ class ControllerNode(GraphNode, Hosted):
                 "last_input_mono_ns": int((self.watchdog.last or 0.0) * 1e9),
                 "last_answer_ns": self.answers.last_ns,
                 "params_changed_at_ns": self.changed_at_ns,
-                "stale_events": self.watchdog.stale_events, "boot_ns": self.boot_ns})])
+                "stale_events": self.watchdog.stale_events,
+                **self._age_report(),
+                "boot_ns": self.boot_ns})])
+
+    def _age_report(self) -> dict[str, object]:
+        if self.age is None:
+            return {"age_guard": False}
+        floor = self.age.floor_ns
+        return {"age_guard": True, "old_inputs": self.age.old,
+                "last_old_ns": self.age.last_old_ns,
+                "worst_excess_ms": f"{self.age.worst_s * 1e3:.3f}",
+                "fastest_offset_ns": -1 if floor is None else floor}
 
     def final_reports(self) -> list[SamplePublisher]:
         """Publish the final counters; returns the publishers whose readers should
