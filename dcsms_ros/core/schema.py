@@ -77,7 +77,9 @@ GLOBAL_SPECS: tuple[ParamSpec, ...] = (
     _P("control.fade_time_s", "float", 0.5, "s", "Gain fade-in/fade-out time on a mode "
        "switch", 0.0, 60.0),
     _P("control.input_timeout_s", "float", 0.01, "s", "Real time: an input or force older "
-       "than this is stale and gives zero force", 0.0, 10.0, lo_open=True),
+       "than this is stale and gives zero force; with a controller's `force_reader` another "
+       "node than the plant (a rig), also an input that comes this much later than the "
+       "fastest recent delivery", 0.0, 10.0, lo_open=True),
     _P("control.lockstep_timeout_s", "float", 0.5, "s", "Lockstep: wall-clock wait for a "
        "controller's force before it counts as a fault", 0.0, 60.0, lo_open=True),
     _P("control.trip_rms_mps", "float", 1e-3, "m/s", "Instability trip: band-limited RMS of a "
