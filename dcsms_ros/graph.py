@@ -40,6 +40,11 @@ SCHEDULES = ("lockstep", "realtime")
 #: :func:`dcsms_ros.ros.runtime.rt_priority_from_env`); set for the control path by
 #: ``--rt-priority`` and the launch argument ``rt_priority``.
 RT_PRIORITY_ENV = "DCSMS_RT_PRIORITY"
+#: Environment variables of a recorded run of one process per node (``dcsms up --record``):
+#: the bag directory in which a node process records the per-sample topics it publishes
+#: itself, and those topics (space-separated); :mod:`dcsms_ros.nodes.recorder_part`.
+RECORD_PART_ENV = "DCSMS_RECORD_PART"
+RECORD_TOPICS_ENV = "DCSMS_RECORD_TOPICS"
 #: Writer history of lockstep streams (:func:`dcsms_ros.ros.qos.stream_pub`), and so the
 #: reader history of a recorder of a lockstep run: how far a reliable observer (recorder,
 #: probe) may lag behind, and the window in which a sample it lost (a full shared-memory queue
@@ -146,15 +151,17 @@ class GraphSpec:
                 + [nm.force(c) for c in controller_ids(self.num_stages)]
                 + ([nm.force(topics.EXCITATION_ID)] if excited else []))
 
-    def recorded_observed(self, recorded: Collection[str] | None = None) -> list[str]:
+    def recorded_observed(self, recorded: Collection[str] | None = None,
+                          streams: bool = True) -> list[str]:
         """What the plant of a recorded run waits for the recorder to subscribe to before
         sample 0 (absolute; ``recorded``: the recorded topics, None: all): every per-sample
-        topic, and the latched mode and configuration, which keep only their newest message: a
+        topic (unless ``streams`` is False: the node processes record them themselves), and
+        the latched mode and configuration, which keep only their newest message: a
         recorder that found them after a switch would miss the modes before it. Real time
         waits too (bounded by ``handshake_timeout_s``), so the bag starts at sample 0; once
         stepping, nothing waits on the recorder."""
         nm = self.names
-        wanted = [*self.stream_topics(), nm.mode, nm.config]
+        wanted = [*(self.stream_topics() if streams else []), nm.mode, nm.config]
         return [t for t in wanted if recorded is None or t in recorded]
 
     def analysis_topics(self) -> list[str]:
@@ -271,5 +278,5 @@ def define_graph(cfg: SystemConfig, *, schedule: str = "realtime", mode: Mode = 
     return GraphSpec(ns, schedule, n, shared_parameters(cfg, schedule, observers), tuple(nodes))
 
 
-__all__ = ["NODE_CLASSES", "RT_PRIORITY_ENV", "GraphSpec", "NodeSpec", "define_graph",
-           "shared_parameters", "spec_from_dict"]
+__all__ = ["NODE_CLASSES", "RECORD_PART_ENV", "RECORD_TOPICS_ENV", "RT_PRIORITY_ENV", "GraphSpec",
+           "NodeSpec", "define_graph", "shared_parameters", "spec_from_dict"]

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 from dcsms_ros.analysis.paper import TABLE4, within
 from dcsms_ros.cli import EXIT_INTERRUPTED
 from dcsms_ros.cli.common import add_config_options, find_share_file, load_cfg, print_model_check
+from dcsms_ros.cli.deploy import records_in_nodes
 from dcsms_ros.cli.up import add_deploy_options, build_graph, check_deploy_options, launch
 from dcsms_ros.core.modes import ALL_MODES, Mode, parse_mode
 from dcsms_ros.errors import DcsmsError
@@ -173,7 +174,8 @@ def _graph(args: argparse.Namespace, cfg: Any, modes: list[Mode],
     spec = build_graph(cfg, args, "lockstep", modes[0], total, schedule)
     recorded = spec.analysis_topics()
     spec = build_graph(cfg, args, "lockstep", modes[0], total, schedule,
-                       observers=spec.recorded_observed(recorded))
+                       observers=spec.recorded_observed(
+                           recorded, streams=not records_in_nodes(args.composed, args.recorder)))
     status = launch(spec, args, schedule, bag, recorded, out / "logs", True, cfg.plant.rate_hz,
                     interrupted_status=EXIT_INTERRUPTED)
     if status not in (0, EXIT_INTERRUPTED):

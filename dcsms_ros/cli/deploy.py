@@ -25,8 +25,10 @@ stop: no process is left behind, and a recorder still closes its bag.
 from __future__ import annotations
 
 import ctypes
+import fnmatch
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -40,7 +42,14 @@ import yaml
 
 from dcsms_ros.analysis.gaps import read_published
 from dcsms_ros.core.modes import Mode
-from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, RT_PRIORITY_ENV, GraphSpec
+from dcsms_ros.errors import BagError
+from dcsms_ros.graph import (
+    LOCKSTEP_WRITER_DEPTH,
+    RECORD_PART_ENV,
+    RECORD_TOPICS_ENV,
+    RT_PRIORITY_ENV,
+    GraphSpec,
+)
 from dcsms_ros.jsonutil import jsonable
 from dcsms_ros.protocols.runstats import RunSummary, summarize
 from dcsms_ros.rosenv import keep_discovery_local
@@ -50,6 +59,8 @@ STOP_TIMEOUTS = (5.0, 2.0)
 #: The same for the recorder, which writes its whole backlog first (recorder.DRAIN_MAX_S).
 RECORDER_STOP_TIMEOUTS = (40.0, 5.0)
 RECORDERS = ("process", "composed")
+#: The recorder process's bag among a per-process run's parts (:func:`parts_dir`).
+RECORDER_PART = "recorder"
 #: Niceness of a recorder process beside a real-time graph: the observer yields the CPU to the
 #: control path's threads under the normal scheduler (its DDS reception above all, which is what
 #: delivers a sample to a SCHED_FIFO hot thread). 5 alternating pairs of 20 s per-process runs:
@@ -103,7 +114,8 @@ def composed_child(graph_file: Path, params_file: Path, rt_priority: int = 0,
 
 
 def recorder_command(out: str | Path, topics: Sequence[str] | None = None,
-                     storage: str = "mcap", duration_s: float | None = None) -> list[str]:
+                     storage: str = "mcap", duration_s: float | None = None,
+                     exclude: Sequence[str] = ()) -> list[str]:
     """The argv that runs ``dcsms record`` as a child process with this interpreter.
 
     Start it with ``subprocess.Popen`` before the graph's publishers, stop it with
@@ -113,6 +125,8 @@ def recorder_command(out: str | Path, topics: Sequence[str] | None = None,
     cmd = [sys.executable, "-m", "dcsms_ros.cli", "record", str(out), "--storage", storage]
     if topics:
         cmd += ["--topics", *topics]
+    if exclude:
+        cmd += ["--exclude", *exclude]
     if duration_s is not None:
         cmd += ["--duration", repr(float(duration_s))]
     return cmd
@@ -229,21 +243,35 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     params_file, graph_file = write_files(spec, how.log_dir)
     kids: list[Child] = []
     in_process: list[str] = []
+    parts: Path | None = None
+    streams: list[str] = []
     if how.record is not None:
         topics = list(how.record_topics or [f"{spec.namespace.rstrip('/')}/*", "/diagnostics"])
         if how.composed and how.recorder == "composed":
             in_process = [str(how.record), *topics]
         else:
+            out = how.record
+            if records_in_nodes(how.composed, how.recorder):
+                parts = parts_dir(how.record)
+                if parts.exists():
+                    raise BagError(f"{parts}: a previous run's parts are in the way; remove it")
+                streams = [t for t in spec.stream_topics()
+                           if any(fnmatch.fnmatchcase(t, pat) for pat in topics)]
+                out = parts / RECORDER_PART
             # lockstep: the reader history covers as much as the writers' (qos.py)
             depth = ["--queue-depth", str(LOCKSTEP_WRITER_DEPTH)] \
                 if spec.schedule == "lockstep" else []
             nice = RECORDER_NICE if spec.schedule != "lockstep" else 0
-            kids.append(Child("recorder", recorder_command(how.record, topics) + depth,
-                              nice=nice))
+            kids.append(Child("recorder", recorder_command(out, topics, exclude=streams)
+                              + depth, nice=nice))
     if how.composed:
         graph = [composed_child(graph_file, params_file, how.rt_priority, in_process)]
     else:
         graph = children(spec, params_file, how.rt_priority)
+        if parts is not None:
+            for kid in graph:
+                kid.env[RECORD_PART_ENV] = str(parts / kid.name)
+                kid.env[RECORD_TOPICS_ENV] = " ".join(streams)
     status = 0
     plant: dict[str, str] = {}
     try:
@@ -258,7 +286,7 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     finally:
         # the graph first (composed with the recorder inside: its drain too), so the recorder
         # receives everything it published
-        stop(graph, RECORDER_STOP_TIMEOUTS if in_process else STOP_TIMEOUTS)
+        stop(graph, RECORDER_STOP_TIMEOUTS if in_process or parts else STOP_TIMEOUTS)
         stop(kids, RECORDER_STOP_TIMEOUTS)
     if kids and kids[0].proc is not None and kids[0].proc.returncode not in (0, None):
         print(f"dcsms up: the recorder exited with status {kids[0].proc.returncode}",
@@ -266,9 +294,44 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
         status = status or 1
     if in_process and graph[0].proc is not None and graph[0].proc.returncode not in (0, None):
         status = status or 1
+    if parts is not None and how.record is not None:
+        status = merge_parts(parts, how.record) or status
     if plant:
         report_summary(spec, plant, how.record, how.log_dir, how.composed)
     return status
+
+
+def parts_dir(bag: Path) -> Path:
+    """Where the processes of a recorded run of one process per node write their parts."""
+    return bag.with_name(bag.name + ".parts")
+
+
+def records_in_nodes(composed: bool, recorder: str | None) -> bool:
+    """True if a recorded run of this deployment records each per-sample topic in the node
+    process that publishes it (one process per node, the default recorder): then no
+    recorder process subscribes to those topics, and none is waited for."""
+    return not composed and (recorder or "composed") == "composed"
+
+
+def merge_parts(parts: Path, bag: Path) -> int:
+    """Merge the finished parts in ``parts`` into ``bag`` and remove them; 0, or 1 (with one
+    line on stderr) if a part is missing or the merge failed (the parts are then kept)."""
+    # deferred: rosbags' reader, which `dcsms --help` must not import
+    from dcsms_ros.analysis.bagmerge import merge_bags  # noqa: PLC0415
+
+    done = sorted(d for d in parts.iterdir() if (d / "metadata.yaml").is_file())
+    left = sorted(d.name for d in parts.iterdir() if d not in done)
+    try:
+        merge_bags(done, bag)
+    except BagError as exc:
+        print(f"dcsms up: error: {exc}; the parts are kept in {parts}", file=sys.stderr)
+        return 1
+    if left:  # a process that did not close its part (killed): what it wrote is not in the bag
+        print(f"dcsms up: warning: unfinished parts not merged into {bag}: {', '.join(left)} "
+              f"(kept in {parts})", file=sys.stderr)
+        return 1
+    shutil.rmtree(parts, ignore_errors=True)
+    return 0
 
 
 def report_summary(spec: GraphSpec, plant: dict[str, str], bag: Path | None,
@@ -310,5 +373,6 @@ def bag_published(bag: Path) -> dict[str, int]:
 
 
 __all__ = ["RECORDERS", "Child", "Deployment", "bag_counts", "bag_published", "child_env",
-           "children", "composed_child", "node_argv", "recorder_command", "report_summary",
-           "run_graph", "start", "stop", "write_files"]
+           "children", "composed_child", "merge_parts", "node_argv", "parts_dir",
+           "recorder_command", "records_in_nodes", "report_summary", "run_graph", "start",
+           "stop", "write_files"]

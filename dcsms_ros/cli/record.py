@@ -30,6 +30,8 @@ def register(subparsers: Any) -> None:
                    "exist)")
     p.add_argument("--topics", nargs="+", metavar="T", default=None,
                    help="topic names or fnmatch patterns (default: /dcsms/*)")
+    p.add_argument("--exclude", nargs="+", metavar="T", default=None,
+                   help="topic names or fnmatch patterns not to record (default: none)")
     p.add_argument("--storage", choices=STORAGES, default="mcap",
                    help="rosbag2 storage plugin (default: mcap)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
@@ -52,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     if args.queue_depth is not None and args.queue_depth < 1:
         raise DcsmsError(f"--queue-depth {args.queue_depth}: must be >= 1")
     rec = record(str(args.out), args.topics, args.storage, args.duration, args=[],
-                 queue_depth=args.queue_depth)
+                 queue_depth=args.queue_depth, exclude=args.exclude)
     if args.json:
         print_json(rec.as_dict())
     else:

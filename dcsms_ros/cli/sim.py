@@ -29,6 +29,7 @@ from dcsms_ros.cli.common import (
     print_model_check,
     refuse_unstable_start,
 )
+from dcsms_ros.cli.deploy import records_in_nodes
 from dcsms_ros.cli.up import add_deploy_options, build_graph, check_deploy_options, launch
 from dcsms_ros.core.config import with_overrides
 from dcsms_ros.core.modes import parse_mode
@@ -183,7 +184,8 @@ def _graph(args: argparse.Namespace, cfg: Any, mode: Any, schedule: list[Any]) -
     nm = spec.names
     recorded = [nm.config, nm.mode, nm.supervisor_state, *spec.stream_topics()]
     spec = build_graph(cfg, args, "lockstep", mode, args.duration, schedule,
-                       observers=spec.recorded_observed(recorded))
+                       observers=spec.recorded_observed(
+                           recorded, streams=not records_in_nodes(args.composed, args.recorder)))
     t0 = time.perf_counter()
     status = launch(spec, args, schedule, args.out, recorded, None, True, cfg.plant.rate_hz)
     if status == 0:

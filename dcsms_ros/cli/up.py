@@ -25,7 +25,7 @@ from dcsms_ros.cli.common import (
     print_model_check,
     refuse_unstable_start,
 )
-from dcsms_ros.cli.deploy import RECORDERS, Deployment, run_graph
+from dcsms_ros.cli.deploy import RECORDERS, Deployment, records_in_nodes, run_graph
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode, parse_mode
@@ -52,10 +52,12 @@ def add_deploy_options(p: argparse.ArgumentParser, composed: bool = False) -> No
                        help="every node in one process, one driver thread for the sample "
                        "cycle (default: one process per node, as `ros2 run`)")
     p.add_argument("--recorder", choices=RECORDERS, default=None,
-                   help="with --composed and a recording: the recorder in the composed process "
-                   "(default: it takes every message there without DDS; lockstep ~1.6x faster, "
-                   "real-time control latency p99 0.19-0.27 ms) or in its own process (every "
-                   "message also goes out on DDS; p99 0.34-0.42 ms; docs/performance.md)")
+                   help="with a recording: 'composed' (default) records each per-sample topic in "
+                   "the process that publishes it, without DDS (composed: the one process; "
+                   "lockstep ~1.6x faster, real-time control latency p99 0.19-0.27 ms; one "
+                   "process per node: each node process writes a part, merged into the bag at "
+                   "the end), the other topics in a recorder process; 'process' records "
+                   "everything in a recorder process over DDS (docs/performance.md)")
     p.add_argument("--rt-priority", type=int, default=0, metavar="N",
                    help="run the hot thread of each control-path process (plant, decoupling, "
                    "controllers; composed: the driver thread, with the executor's thread on "
@@ -215,7 +217,9 @@ def run(args: argparse.Namespace) -> int:
     spec = build_graph(cfg, args, args.schedule, mode, args.duration or 0.0, events)
     if args.record is not None:
         # the run starts once the recorder listens: its bag holds every sample from 0
-        observers += spec.recorded_observed(args.record_topics or None)
+        observers += spec.recorded_observed(
+            args.record_topics or None,
+            streams=not records_in_nodes(args.composed, args.recorder))
     if observers:
         spec = build_graph(cfg, args, args.schedule, mode, args.duration or 0.0, events,
                            observers)

@@ -34,6 +34,7 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.excitation import Excitation, check_specs, parse_spec
 from dcsms_ros.core.supervisor import TRIPPED_STATES
 from dcsms_ros.errors import ConfigError
+from dcsms_ros.nodes import recorder_part
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import Hosted
@@ -175,7 +176,7 @@ class ExcitationNode(GraphNode, Hosted):
         return [self.pub, self.reports.pub]
 
 
-main = main_for(ExcitationNode)
+main = main_for(ExcitationNode, attach=recorder_part.attach)
 
 if __name__ == "__main__":
     main()

@@ -14,6 +14,7 @@ from typing import Any
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.modes import FB_STAGE1, FEEDBACK, ControllerId
+from dcsms_ros.nodes import recorder_part
 from dcsms_ros.ros.controller_node import ControllerNode
 from dcsms_ros.ros.params import declare_local, feedback_select
 from dcsms_ros.ros.runtime import main_for
@@ -31,7 +32,7 @@ class FeedbackControllerNode(ControllerNode):
         self.setup(str(cid), feedback_select(stage), f"stage{stage}")
 
 
-main = main_for(FeedbackControllerNode)
+main = main_for(FeedbackControllerNode, attach=recorder_part.attach)
 
 if __name__ == "__main__":
     main()

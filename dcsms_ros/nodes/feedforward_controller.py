@@ -11,6 +11,7 @@ from typing import Any
 
 from dcsms_ros.core import topics
 from dcsms_ros.core.modes import FF_STAGE1
+from dcsms_ros.nodes import recorder_part
 from dcsms_ros.ros.controller_node import ControllerNode
 from dcsms_ros.ros.params import SELECTORS
 from dcsms_ros.ros.runtime import main_for
@@ -25,7 +26,7 @@ class FeedforwardControllerNode(ControllerNode):
         self.setup(FF_STAGE1, SELECTORS["feedforward_controller"], "ground")
 
 
-main = main_for(FeedforwardControllerNode)
+main = main_for(FeedforwardControllerNode, attach=recorder_part.attach)
 
 if __name__ == "__main__":
     main()

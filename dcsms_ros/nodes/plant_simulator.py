@@ -40,6 +40,7 @@ from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.core.trip import check_samples
 from dcsms_ros.nodes import plant_simulator_io as plant_io
+from dcsms_ros.nodes import recorder_part
 from dcsms_ros.nodes.plant_simulator_options import declare_plant_options, replayed_ground
 from dcsms_ros.protocols.barrier import Action, LockstepBarrier
 from dcsms_ros.protocols.pacer import HeldInputs, Pacer
@@ -295,7 +296,7 @@ class PlantSimulatorNode(GraphNode, Hosted):
         return self.io.closing()
 
 
-main = main_for(PlantSimulatorNode)
+main = main_for(PlantSimulatorNode, attach=recorder_part.attach)
 
 if __name__ == "__main__":
     main()

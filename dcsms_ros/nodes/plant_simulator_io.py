@@ -182,7 +182,7 @@ class PlantIO:
         if k % self.clock_every == 0:
             self.pub_clock.publish(ClockMsg(clock=to_stamp(ns)))
         for b, (pub, v) in enumerate(zip(self.pub_truth, truth, strict=False)):
-            if pub.get_subscription_count():
+            if pub.wanted():
                 pub.publish(self._w_truth[b].encode(ns, v))
         return ns
 
@@ -202,7 +202,7 @@ class PlantIO:
         if self._applied is not None:
             applied, ns = self._applied
             self._applied = None
-            if self.pub_applied.get_subscription_count():
+            if self.pub_applied.wanted():
                 self.pub_applied.publish(self._w_applied.encode(ns, applied))
 
     def excitation_frame(self, frame: str) -> None:

@@ -29,8 +29,10 @@ topic shows a message received after the signal, or no message arrived for ``QUI
 into place: nothing received before the signal is lost.
 
 Parameters: ``out`` (bag directory), ``topics`` (names or fnmatch patterns, default
-``["/dcsms/*"]``), ``storage`` (mcap | sqlite3), ``queue_depth`` (4000), ``duration_s``
-(0 = until a signal), ``report_period_s`` (10), ``discovery_period_s`` (0.5).
+``["/dcsms/*"]``), ``exclude`` (names or patterns not to record, default none: ``dcsms up``
+leaves out the per-sample topics its node processes record themselves), ``storage`` (mcap |
+sqlite3), ``queue_depth`` (4000), ``duration_s`` (0 = until a signal), ``report_period_s``
+(10), ``discovery_period_s`` (0.5).
 """
 
 from __future__ import annotations
@@ -126,7 +128,7 @@ class Recorder(GraphNode):
 
     Parameters
     ----------
-    out, topics, storage, duration_s, queue_depth : optional
+    out, topics, storage, duration_s, queue_depth, exclude : optional
         Override the ROS parameters of the same name (used by ``dcsms record``).
     **kwargs
         Passed to :class:`rclpy.node.Node` (e.g. ``context``).
@@ -139,11 +141,13 @@ class Recorder(GraphNode):
 
     def __init__(self, out: str | None = None, topics: Sequence[str] | None = None,
                  storage: str | None = None, duration_s: float | None = None,
-                 queue_depth: int | None = None, **kwargs: Any) -> None:
+                 queue_depth: int | None = None, exclude: Sequence[str] | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = self.declare_parameter
         self.out = out or str(p("out", "dcsms_bag").value)
         self.patterns = list(topics or p("topics", list(DEFAULT_TOPICS)).value)
+        self.exclude = list(exclude or p("exclude", [""]).value)
         self.storage = storage or str(p("storage", "mcap").value)
         dur = p("duration_s", 0.0).value if duration_s is None else duration_s
         self.duration_s = float(dur or 0.0)
@@ -175,7 +179,8 @@ class Recorder(GraphNode):
     # -- discovery ------------------------------------------------------------------------
 
     def _wanted(self, topic: str) -> bool:
-        return any(fnmatch.fnmatchcase(topic, pat) for pat in self.patterns)
+        return any(fnmatch.fnmatchcase(topic, pat) for pat in self.patterns) and \
+            not any(fnmatch.fnmatchcase(topic, pat) for pat in self.exclude if pat)
 
     def discover(self) -> None:
         """Subscribe to the wanted topics that have publishers now (also every
@@ -337,7 +342,7 @@ class Recorder(GraphNode):
 
 def record(out: str, topics: Sequence[str] | None = None, storage: str | None = None,
            duration_s: float | None = None, args: list[str] | None = None,
-           queue_depth: int | None = None) -> Recording:
+           queue_depth: int | None = None, exclude: Sequence[str] | None = None) -> Recording:
     """Record until SIGINT, SIGTERM or ``duration_s``; returns the counts and gaps.
 
     Must run in the main thread (it installs the signal handlers; the previous ones are
@@ -351,7 +356,7 @@ def record(out: str, topics: Sequence[str] | None = None, storage: str | None = 
     with ros_context(args, signals=True) as ros:
         node: Recorder | None = None
         try:
-            node = rec = Recorder(out, topics, storage, duration_s, queue_depth,
+            node = rec = Recorder(out, topics, storage, duration_s, queue_depth, exclude,
                                   context=ros.context)
             widen_udp_receive_buffers()  # ~0.4 s of the full graph kept while off its core
             executor = HostExecutor(context=ros.context)

@@ -25,6 +25,7 @@ from sensor_msgs.msg import JointState
 from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, StampedWriter
 from dcsms_ros.core import topics
 from dcsms_ros.core.decoupling import Decoupler
+from dcsms_ros.nodes import recorder_part
 from dcsms_ros.protocols.responder import skipped
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.graphnode import GraphNode
@@ -171,7 +172,7 @@ class SensorDecouplingNode(GraphNode, Hosted):
         return [*self.pubs, self.reports.pub]
 
 
-main = main_for(SensorDecouplingNode)
+main = main_for(SensorDecouplingNode, attach=recorder_part.attach)
 
 if __name__ == "__main__":
     main()

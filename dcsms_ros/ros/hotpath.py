@@ -35,14 +35,14 @@ import threading
 from collections.abc import Callable, Collection
 from typing import Any
 
-from rclpy.callback_groups import CallbackGroup
+from rclpy.callback_groups import CallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.localbus import Endpoint, Inbox, LocalBus
 from dcsms_ros.ros.hotloop import GIL_SWITCH_S, IDLE_S, DrivenContext, HotLoop, enabled
-from dcsms_ros.ros.intraprocess import BusPublisher, DirectPublisher, SamplePublisher
+from dcsms_ros.ros.intraprocess import BusPublisher, DirectPublisher, HotPublisher
 
 
 class DetachedGroup(CallbackGroup):
@@ -56,6 +56,13 @@ class DetachedGroup(CallbackGroup):
 
     def ending_execution(self, entity: Any) -> None:
         return None
+
+
+class UnlockedGroup(ReentrantCallbackGroup):
+    """A callback group whose timers run outside the node's hot-path lock
+    (:func:`.serialized.serialize` leaves them unwrapped): for a periodic job that touches
+    no node state and is thread-safe on its own (a part recorder's chunk flush, which
+    compresses and writes a file and must not hold up the hot thread meanwhile)."""
 
 
 class HotPath:
@@ -81,7 +88,7 @@ class HotPath:
         #: every reader (subscribed or detached) and per-sample writer of the path, for
         #: :meth:`unmatched` and the readiness announcement (:mod:`.readiness`)
         self.readers: list[Subscription] = []
-        self.writers: list[SamplePublisher] = []
+        self.writers: list[HotPublisher] = []
         self._tick: Callable[[], float | None] | None = None
         self.loop: HotLoop | None = None
         self._own = False
@@ -182,7 +189,7 @@ class HotPath:
             return self.bus.inbox(topic)
         return self.bus.subscribe(topic, handler, self.lock, latest_only)
 
-    def publisher(self, msg_type: Any, topic: str, qos: QoSProfile) -> SamplePublisher:
+    def publisher(self, msg_type: Any, topic: str, qos: QoSProfile) -> HotPublisher:
         """A per-sample publisher (serialized messages): composed, a :class:`BusPublisher`
         (in-process delivery, DDS only for remote readers); else a :class:`DirectPublisher`."""
         pub = self.node.create_publisher(msg_type, topic, qos)
@@ -340,4 +347,4 @@ def _then(handler: Callable[[Any], None], flush: Callable[[], None]) -> Callable
 
 # the loop's names too, for the modules that import them from here
 __all__ = ["GIL_SWITCH_S", "IDLE_S", "DetachedGroup", "DrivenContext", "HotLoop", "HotPath",
-           "enabled"]
+           "UnlockedGroup", "enabled"]

@@ -26,6 +26,7 @@ DDS only when DDS has a reader to give it to:
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -59,6 +60,12 @@ class _Wrapped:
     def wait_for_all_acked(self, timeout: Duration) -> bool:
         """The DDS writer's wait for its reliable readers' acknowledgements."""
         return bool(self.pub.wait_for_all_acked(timeout))
+
+    def wanted(self) -> bool:
+        """True while anyone takes the messages: a matched DDS reader (this process's own
+        included), or an observer in the process (:meth:`DirectPublisher.observe`). A writer
+        of an optional topic (the plant's truth) publishes only then."""
+        return self.get_subscription_count() > 0
 
 
 class BusPublisher(_Wrapped):
@@ -112,7 +119,7 @@ class BusPublisher(_Wrapped):
 
 class DirectPublisher(_Wrapped):
     """A per-sample publisher of one process per node: rclpy's publisher, whose
-    :meth:`publish` is its handle's ``publish_raw`` (rclpy's ``Publisher.publish`` enters the
+    :meth:`publish` calls its handle's ``publish_raw`` (rclpy's ``Publisher.publish`` enters the
     handle and checks the type at every call: 1.7 us, the bound method 0.6 us). Serialized
     messages only. The handle lives as long as the node: the hot loop ends before the node is
     destroyed (:func:`.runtime.run`); a publication after that raises rclpy's error.
@@ -125,11 +132,46 @@ class DirectPublisher(_Wrapped):
 
     def __init__(self, pub: Publisher) -> None:
         self.pub = pub
-        self.publish: Callable[[bytes], None] = pub.handle.publish_raw
+        self._raw: Callable[[bytes], None] = pub.handle.publish_raw
+        self._matched = pub.handle.get_subscription_count
+        self._durable = pub.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+        self._observer: Callable[[bytes, int, int], None] | None = None
+        self._seq = 0
+        #: whether :meth:`observe` added an observer
+        self.observed = False
+
+    def publish(self, data: bytes) -> None:
+        """Publish ``data`` (serialized) on DDS, then hand it to the observer, if any. With
+        an observer, a volatile writer skips DDS while no reader is matched (the plant's truth
+        topics, recorded in the process: no reader of them elsewhere); a transient-local one
+        always publishes, for the history a late reader gets."""
+        obs = self._observer
+        if obs is None:
+            self._raw(data)
+            return
+        if self._durable or self._matched():
+            self._raw(data)
+        self._seq += 1
+        obs(data, self._seq, time.time_ns())
+
+    def observe(self, observer: Callable[[bytes, int, int], None]) -> None:
+        """After each publication on DDS, call ``observer(data, seq, t_ns)``: the bytes, the
+        publication's number counted from 1 (as a DDS writer numbers them) and the system
+        time (ns) of the publication. Used by the recorder of the node's own process
+        (``dcsms up --record``, one process per node): it writes every message as published,
+        without a DDS reader. Call before the hot loop starts."""
+        self._observer = observer
+        self.observed = True
+
+    def wanted(self) -> bool:
+        """True while a DDS reader is matched or an observer takes every message."""
+        return self.observed or self.get_subscription_count() > 0
 
 
 #: What a node's per-sample publisher is: a :class:`BusPublisher` composed, else a
 #: :class:`DirectPublisher` (or rclpy's own).
 SamplePublisher = Publisher | BusPublisher | DirectPublisher
+#: A per-sample publisher made by a node's hot path.
+HotPublisher = BusPublisher | DirectPublisher
 
-__all__ = ["BusPublisher", "DirectPublisher", "SamplePublisher"]
+__all__ = ["BusPublisher", "DirectPublisher", "HotPublisher", "SamplePublisher"]

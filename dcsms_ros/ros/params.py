@@ -18,7 +18,7 @@ values are stored, under its hot-path lock (:mod:`.serialized`).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from contextlib import nullcontext
 from typing import Any, TypeVar
 
@@ -292,7 +292,7 @@ def declare_observed(node: Node) -> list[str]:
 
 
 def answerer(node: Node, publish: Callable[[T], None], lockstep: bool,
-             pubs: list[SamplePublisher], observed: list[str]) -> Answerer[T]:
+             pubs: Sequence[SamplePublisher], observed: list[str]) -> Answerer[T]:
     """The per-sample :class:`~dcsms_ros.protocols.responder.Answerer` of ``node``: in
     lockstep its first answer waits until ``pubs`` matched every reader this node sees (and
     ``observed`` topics an observer), so an observer misses nothing (the plant retransmits)."""

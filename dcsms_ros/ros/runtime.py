@@ -29,7 +29,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from contextlib import nullcontext
-from typing import Any
+from typing import Any, Protocol
 
 from rclpy.duration import Duration
 from rclpy.executors import Executor
@@ -174,7 +174,20 @@ def close_nodes(nodes: Sequence[Node]) -> None:
         node.destroy_node()
 
 
-def run(factory: Callable[..., Node], args: Sequence[str] | None = None) -> int:
+class Attachment(Protocol):
+    """Something a node's process runs beside the node (the node's own recorder of a
+    recorded run, :mod:`dcsms_ros.nodes.recorder_part`): made once the node exists, before it
+    spins; finished after the node's hot loop ended and its final reports went out."""
+
+    def finish(self) -> object:
+        """Close (the node has stopped publishing)."""
+
+    def abort(self) -> None:
+        """Give up (the node failed before it ran)."""
+
+
+def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
+        attach: Callable[[Node], Attachment | None] | None = None) -> int:
     """Create a node with ``factory(context=...)``, spin it, shut down cleanly.
 
     Parameters
@@ -183,6 +196,9 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None) -> int:
         Called as ``factory(context=ctx)``; returns the node.
     args : sequence of str, optional
         Command line (default ``sys.argv``), ``--ros-args`` included.
+    attach : callable, optional
+        ``attach(node)``: what runs beside the node (None: nothing); may raise
+        :class:`~dcsms_ros.errors.DcsmsError` as a configuration error.
 
     Returns
     -------
@@ -193,12 +209,16 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None) -> int:
     status = 0
     with ros_context(args, signals=True) as ros:
         node: Node | None = None
+        extra: Attachment | None = None
+        ran = False
         try:
             node = factory(context=ros.context)
+            extra = attach(node) if attach is not None else None
             if rt_warning:
                 node.get_logger().warning(rt_warning)
             executor = HostExecutor(context=ros.context)
             try:
+                ran = True
                 spin_node(node, executor, lambda: bool(ros.stop), rt_priority)
             finally:
                 executor.shutdown(timeout_sec=2.0)
@@ -212,13 +232,30 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None) -> int:
                 if hot is not None:
                     hot.stop()  # the hot thread ends before the node's entities go
                 close_nodes([node])
+            if extra is not None:
+                status = _finish(extra, ran) or status
     return status
 
 
-def main_for(factory: Callable[..., Node]) -> Callable[..., None]:
-    """A ``main(args=None)`` entry point for ``factory`` that exits with :func:`run`'s status."""
+def _finish(extra: Attachment, ran: bool) -> int:
+    """Finish (or, if the node never ran, abort) ``extra``; a configuration-error status if
+    finishing failed, else 0."""
+    if not ran:
+        extra.abort()
+        return 0
+    try:
+        extra.finish()
+    except DcsmsError as exc:
+        return config_error(exc)
+    return 0
+
+
+def main_for(factory: Callable[..., Node],
+             attach: Callable[[Node], Attachment | None] | None = None) -> Callable[..., None]:
+    """A ``main(args=None)`` entry point for ``factory`` (and ``attach``, see :func:`run`)
+    that exits with :func:`run`'s status."""
 
     def main(args: Sequence[str] | None = None) -> None:
-        sys.exit(run(factory, args))
+        sys.exit(run(factory, args, attach))
 
     return main

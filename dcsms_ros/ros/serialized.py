@@ -34,7 +34,7 @@ from typing import Any
 from rclpy.node import Node
 
 from dcsms_ros.ros.hosted import hot_path
-from dcsms_ros.ros.hotpath import DetachedGroup, HotPath
+from dcsms_ros.ros.hotpath import DetachedGroup, HotPath, UnlockedGroup
 
 #: Packages of the services every rclpy node creates for itself (parameters, type description).
 BUILTIN_SERVICES = ("rcl_interfaces.", "type_description_interfaces.")
@@ -130,8 +130,9 @@ class Serialized:
 
 
 def serialize(node: Node) -> Serialized | None:
-    """Wrap the executor callbacks of ``node`` (timers, services but rclpy's own, subscriptions
-    not served by the hot loop, guard conditions) to run under its hot-path lock; returns the
+    """Wrap the executor callbacks of ``node`` (timers but those of an
+    :class:`~.hotpath.UnlockedGroup`, services but rclpy's own, subscriptions not served by
+    the hot loop, guard conditions) to run under its hot-path lock; returns the
     wrapper's record, or None for a node without a hot path. Call before the executor gets the
     node."""
     hot = hot_path(node)
@@ -139,7 +140,8 @@ def serialize(node: Node) -> Serialized | None:
         return None
     serial = Serialized(hot.lock, hot)
     for tmr in node.timers:
-        tmr.callback = serial.wrap(tmr.callback, f"timer {tmr.timer_period_ns / 1e9:g} s")
+        if not isinstance(tmr.callback_group, UnlockedGroup):
+            tmr.callback = serial.wrap(tmr.callback, f"timer {tmr.timer_period_ns / 1e9:g} s")
     for srv in node.services:
         if not srv.srv_type.__module__.startswith(BUILTIN_SERVICES):
             srv.callback = serial.wrap(srv.callback, f"service {srv.srv_name}")
