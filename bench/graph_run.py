@@ -65,35 +65,48 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
               config: Path = CONFIG) -> dict[str, Any]:
     """Start the graph (one process per node, or ``composed``), step ``seconds`` of simulated
     time, return the timings. ``record``: ``process`` or ``composed`` runs the recorder (every
-    topic of the graph and /diagnostics, as ``dcsms up --record`` does) beside it.
+    topic of the graph and /diagnostics) beside it; ``parts`` (one process per node, what
+    ``dcsms up --record`` runs) records the per-sample topics in the node processes and the
+    rest in a recorder process, merged into one bag at the end.
 
     ``on_running(kids)`` (e.g. a profiler attaching to ``kid.proc.pid``) is called once the
     plant steps."""
     from dcsms_ros.cli import deploy
     from dcsms_ros.core.config import load_config
     from dcsms_ros.core.modes import Mode
-    from dcsms_ros.graph import LOCKSTEP_WRITER_DEPTH, define_graph
+    from dcsms_ros.graph import (
+        LOCKSTEP_WRITER_DEPTH,
+        RECORD_PART_ENV,
+        RECORD_TOPICS_ENV,
+        define_graph,
+    )
 
     cfg = load_config(config)
     run_dir = Path(tempfile.mkdtemp(prefix=f"graph-{schedule}-", dir=tmp))
     timing = run_dir / "timing.npz"
     spec = define_graph(cfg, schedule=schedule, mode=Mode.DFBC_FFC, duration_s=seconds)
     recorded = [f"{spec.namespace}/*", "/diagnostics"]
+    streams = spec.stream_topics() if record == "parts" else []
     if record:  # the run waits for the recorder to listen, as `up` does
         spec = define_graph(cfg, schedule=schedule, mode=Mode.DFBC_FFC, duration_s=seconds,
-                            observers=spec.recorded_observed())
+                            observers=spec.recorded_observed(streams=not streams))
     spec = spec.with_params("plant_simulator", timing_file=str(timing))
     params, graph_file = deploy.write_files(spec, run_dir)
     bag = run_dir / "bag"
     rec: list[deploy.Child] = []
-    if record == "process":
-        rec = [deploy.Child("recorder", [*deploy.recorder_command(bag, recorded),
+    parts = deploy.parts_dir(bag)
+    if record in ("process", "parts"):
+        out = parts / deploy.RECORDER_PART if streams else bag
+        rec = [deploy.Child("recorder", [*deploy.recorder_command(out, recorded, exclude=streams),
                                          "--queue-depth", str(LOCKSTEP_WRITER_DEPTH)])]
     if composed:
         kids = [deploy.composed_child(graph_file, params, rt_priority,
                                       [str(bag), *recorded] if record == "composed" else ())]
     else:
         kids = deploy.children(spec, params, rt_priority)
+        for k in kids if streams else []:
+            k.env.update({RECORD_PART_ENV: str(parts / k.name),
+                          RECORD_TOPICS_ENV: " ".join(streams)})
     plant = kids[-1]
     with env(ROS_DOMAIN_ID=str(domain), DCSMS_HOT_PATH="1" if hot else "0"):
         deploy.start(rec, run_dir, verbose=False)
@@ -128,6 +141,8 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
         deploy.stop(kids, deploy.RECORDER_STOP_TIMEOUTS if record == "composed" else
                     deploy.STOP_TIMEOUTS)
         deploy.stop(rec, deploy.RECORDER_STOP_TIMEOUTS)
+        if streams and deploy.merge_parts(parts, bag):
+            raise RuntimeError(f"the parts in {parts} could not be merged")
     if plant.proc.returncode != 0 or not timing.exists():
         raise RuntimeError(f"plant exited {plant.proc.returncode}: "
                            f"{plant.log.read_text()[-2000:] if plant.log else ''}")

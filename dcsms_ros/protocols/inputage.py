@@ -21,8 +21,9 @@ Not against the simulated plant, which ages every force itself from its sample's
 samples at once after a late wake-up, and beyond that drops the backlog and moves its
 schedule on (:class:`.pacer.Pacer`), so a stamp does not tell when its sample was published.
 Measured, one process per node: the guard judged 5,321 of 5,470 inputs old in the 2 s after a
-plant that moved on, and withheld 3.6 % of the forces of whole runs on top of the 6-7 % the
-plant counted stale (``test_an_elastic_schedule_looks_late`` shows how).
+plant that moved on; told of each schedule move (a plant topic, tried and dropped), it still
+withheld 3.6 % of the forces of whole runs on top of the 6-7 % the plant counted stale
+(docs/reliability.md; ``test_an_elastic_schedule_looks_late`` shows how).
 
 A delay that lasts longer than the window becomes the new floor: the guard catches stalls,
 bursts and backlogs, not a path that is slow for good (that is the supervisor's to trip on).
