@@ -4,16 +4,18 @@ A recorder process takes every message over DDS. At 2 kHz the graph's eleven per
 topics are 22,000 messages/s, each costing a DDS reception (~45 us) in the recorder and a
 send in its writer; on two cores that made the recorded per-process graph CPU-bound (stale
 forces 2.2-4.5 % of 120,000 recorded, 0-0.2 % unrecorded: docs/performance.md). So each node
-process records the per-sample topics it publishes itself, as it publishes them (the bytes,
-the publication's number, the system time as the bag time), into a bag of its own, the
+process records the per-sample topics it publishes itself, as it publishes them (the bytes
+and the system time of the publication as the bag time), into a bag of its own, the
 *part*; ``dcsms up`` merges the parts and its recorder process's bag (every other topic) into
 the one bag asked for (:func:`dcsms_ros.analysis.bagmerge.merge_bags`). It is the composed
 recorder's rule (it takes the bus's bytes) for a process of one node.
 
 ``dcsms up`` asks for it with :data:`~dcsms_ros.graph.RECORD_PART_ENV` (the part's bag
 directory) and :data:`~dcsms_ros.graph.RECORD_TOPICS_ENV` (the topics); without them a node
-records nothing, as under ``ros2 run``. Writes run on the hot thread (~2-4 us a message);
-full chunks are compressed and written by the node's executor (a housekeeping job).
+records nothing, as under ``ros2 run``. Writes run on the hot thread (~1.5 us a message);
+full chunks are compressed and written by the node's executor, outside the hot-path lock
+(:class:`~dcsms_ros.ros.hotpath.UnlockedGroup`: under it, the hot thread waited for each
+chunk and the plant's late samples doubled, docs/performance.md).
 """
 
 from __future__ import annotations
@@ -78,10 +80,11 @@ class PartRecorder:
             node.housekeeping(FLUSH_PERIOD_S, self.writer.flush, UnlockedGroup())
 
     def _observer(self, topic: str) -> Any:
-        # the write alone (~1.5 us): the numbers are the observer's own, so no gap can hide
+        # the write alone (~1.5 us): every publication is observed, so no gap can hide and
+        # what was published is the part's count
         write = self.writer.write
 
-        def cb(data: bytes, seq: int, t_ns: int) -> None:
+        def cb(data: bytes, t_ns: int) -> None:
             if self._open:
                 write(topic, t_ns, data)
 

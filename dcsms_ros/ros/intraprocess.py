@@ -135,8 +135,7 @@ class DirectPublisher(_Wrapped):
         self._raw: Callable[[bytes], None] = pub.handle.publish_raw
         self._matched = pub.handle.get_subscription_count
         self._durable = pub.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
-        self._observer: Callable[[bytes, int, int], None] | None = None
-        self._seq = 0
+        self._observer: Callable[[bytes, int], None] | None = None
         #: whether :meth:`observe` added an observer
         self.observed = False
 
@@ -151,12 +150,10 @@ class DirectPublisher(_Wrapped):
             return
         if self._durable or self._matched():
             self._raw(data)
-        self._seq += 1
-        obs(data, self._seq, time.time_ns())
+        obs(data, time.time_ns())
 
-    def observe(self, observer: Callable[[bytes, int, int], None]) -> None:
-        """After each publication on DDS, call ``observer(data, seq, t_ns)``: the bytes, the
-        publication's number counted from 1 (as a DDS writer numbers them) and the system
+    def observe(self, observer: Callable[[bytes, int], None]) -> None:
+        """After each publication, call ``observer(data, t_ns)``: the bytes and the system
         time (ns) of the publication. Used by the recorder of the node's own process
         (``dcsms up --record``, one process per node): it writes every message as published,
         without a DDS reader. Call before the hot loop starts."""
