@@ -245,8 +245,11 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     in_process: list[str] = []
     parts: Path | None = None
     streams: list[str] = []
+    recorded_streams: list[str] = []
     if how.record is not None:
         topics = list(how.record_topics or [f"{spec.namespace.rstrip('/')}/*", "/diagnostics"])
+        recorded_streams = [t for t in spec.stream_topics()
+                            if any(fnmatch.fnmatchcase(t, pat) for pat in topics)]
         if how.composed and how.recorder == "composed":
             in_process = [str(how.record), *topics]
         else:
@@ -255,8 +258,7 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
                 parts = parts_dir(how.record)
                 if parts.exists():
                     raise BagError(f"{parts}: a previous run's parts are in the way; remove it")
-                streams = [t for t in spec.stream_topics()
-                           if any(fnmatch.fnmatchcase(t, pat) for pat in topics)]
+                streams = recorded_streams
                 out = parts / RECORDER_PART
             # lockstep: the reader history covers as much as the writers' (qos.py)
             depth = ["--queue-depth", str(LOCKSTEP_WRITER_DEPTH)] \
@@ -288,16 +290,11 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
         # receives everything it published
         stop(graph, RECORDER_STOP_TIMEOUTS if in_process or parts else STOP_TIMEOUTS)
         stop(kids, RECORDER_STOP_TIMEOUTS)
-    if kids and kids[0].proc is not None and kids[0].proc.returncode not in (0, None):
-        print(f"dcsms up: the recorder exited with status {kids[0].proc.returncode}",
-              file=sys.stderr)
-        status = status or 1
-    if in_process and graph[0].proc is not None and graph[0].proc.returncode not in (0, None):
-        status = status or 1
+    status = report_exits(graph + kids) or status
     if parts is not None and how.record is not None:
         status = merge_parts(parts, how.record) or status
     if plant:
-        report_summary(spec, plant, how.record, how.log_dir, how.composed)
+        report_summary(spec, plant, how.record, how.log_dir, how.composed, recorded_streams)
     return status
 
 
@@ -334,13 +331,33 @@ def merge_parts(parts: Path, bag: Path) -> int:
     return 0
 
 
+def report_exits(kids: Sequence[Child]) -> int:
+    """One line on stderr for each stopped process that did not exit cleanly (a node that
+    failed while closing, or one killed after the stop timeouts: what it held back, its part
+    of the bag included, may be lost); 1 if there was one, else 0."""
+    status = 0
+    for kid in kids:
+        code = kid.proc.returncode if kid.proc is not None else None
+        if code in (0, None):
+            continue
+        how = (f"was killed by {signal.Signals(-code).name}" if code < 0 and
+               -code in signal.valid_signals() else f"exited with status {code}")
+        print(f"dcsms up: {kid.name} {how}" + (f" (its log: {kid.log})" if kid.log else ""),
+              file=sys.stderr, flush=True)
+        status = 1
+    return status
+
+
 def report_summary(spec: GraphSpec, plant: dict[str, str], bag: Path | None,
-                   log_dir: Path, composed: bool = False) -> RunSummary:
+                   log_dir: Path, composed: bool = False,
+                   streams: Sequence[str] | None = None) -> RunSummary:
     """Print the run's summary line (and a warning, whose hint depends on ``composed``) and
-    write it as ``summary.json`` in ``log_dir``."""
+    write it as ``summary.json`` in ``log_dir``. ``streams``: the per-sample topics that were
+    to be recorded (default every one of ``spec``); one the bag lacks counts as none recorded."""
     counts = bag_counts(bag) if bag is not None else None
     published = bag_published(bag) if bag is not None else None
-    summary = summarize(plant, counts, spec.stream_topics(), published)
+    summary = summarize(plant, counts, list(spec.stream_topics() if streams is None
+                                            else streams), published)
     print(f"dcsms up: summary: {summary.line()}", flush=True)
     warning = summary.warning(composed)
     if warning:
@@ -374,5 +391,5 @@ def bag_published(bag: Path) -> dict[str, int]:
 
 __all__ = ["RECORDERS", "Child", "Deployment", "bag_counts", "bag_published", "child_env",
            "children", "composed_child", "merge_parts", "node_argv", "parts_dir",
-           "recorder_command", "records_in_nodes", "report_summary", "run_graph", "start",
-           "stop", "write_files"]
+           "recorder_command", "records_in_nodes", "report_exits", "report_summary",
+           "run_graph", "start", "stop", "write_files"]

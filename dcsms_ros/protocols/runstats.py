@@ -192,7 +192,9 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
     counts : mapping or None
         Message count per topic in the bag (None: not recorded).
     streams : list of str
-        The per-sample topics (one message per sample each) that were recorded.
+        The per-sample topics (one message per sample each) that were to be recorded; one
+        that ``counts`` lacks (a node's part that was never closed, a recorder that never
+        matched it) counts as none recorded.
     published : mapping, optional
         Messages each topic's publisher published (the recorder's count, see
         :attr:`RunSummary.published`); used when it covers every recorded stream.
@@ -208,11 +210,10 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
     late = sum(int(plant.get(k, "0")) for k in ("overruns", "late_steps", "lockstep_timeouts"))
     recorded = scale = sent = None
     if counts is not None:
-        present = [s for s in streams if s in counts]
-        recorded = sum(counts[s] for s in present)
-        scale = samples * len(present)
-        if present and published and all(s in published for s in present):
-            sent = sum(published[s] for s in present)
+        recorded = sum(counts.get(s, 0) for s in streams)
+        scale = samples * len(streams)
+        if streams and published and all(s in published for s in streams):
+            sent = sum(published[s] for s in streams)
     return RunSummary(samples=samples, late=late, stale=int(plant.get("stale_samples", "0")),
                       forces=samples * int(plant.get("controllers", "0")),
                       latency_p50_s=num("latency_p50_ms") * 1e-3,

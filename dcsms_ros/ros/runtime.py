@@ -153,8 +153,10 @@ def config_error(exc: DcsmsError) -> int:
     return EXIT_CONFIG
 
 
-def close_nodes(nodes: Sequence[Node]) -> None:
-    """Each node's ``final_reports()``, one shared wait for their acknowledgements, destroy.
+def close_nodes(nodes: Sequence[Node], before_destroy: Callable[[], object] = lambda: None,
+                ) -> None:
+    """Each node's ``final_reports()``, one shared wait for their acknowledgements,
+    ``before_destroy()`` (also if the reports failed), destroy.
 
     The wait is shared because a reader acknowledges only at the writer's next periodic
     heartbeat: with Fast DDS's 3 s, waiting node by node cost composed graphs 3 s per node at
@@ -163,13 +165,16 @@ def close_nodes(nodes: Sequence[Node]) -> None:
     :data:`ACK_WAIT_FINISHED_S` after a run that finished by itself.
     """
     pubs: list[Any] = []
-    for node in nodes:
-        if isinstance(node, Hosted):
-            lock = hot_lock(node)  # a hot loop still draining shares the node's state
-            with lock if lock is not None else nullcontext():
-                pubs += node.final_reports()
-    finished = any(isinstance(node, Hosted) and node.finished for node in nodes)
-    wait_acked(pubs, ACK_WAIT_FINISHED_S if finished else ACK_WAIT_S)
+    try:
+        for node in nodes:
+            if isinstance(node, Hosted):
+                lock = hot_lock(node)  # a hot loop still draining shares the node's state
+                with lock if lock is not None else nullcontext():
+                    pubs += node.final_reports()
+        finished = any(isinstance(node, Hosted) and node.finished for node in nodes)
+        wait_acked(pubs, ACK_WAIT_FINISHED_S if finished else ACK_WAIT_S)
+    finally:
+        before_destroy()
     for node in nodes:
         node.destroy_node()
 
@@ -177,7 +182,8 @@ def close_nodes(nodes: Sequence[Node]) -> None:
 class Attachment(Protocol):
     """Something a node's process runs beside the node (the node's own recorder of a
     recorded run, :mod:`dcsms_ros.nodes.recorder_part`): made once the node exists, before it
-    spins; finished after the node's hot loop ended and its final reports went out."""
+    spins; finished after the node's hot loop ended and its final reports went out, before
+    the node is destroyed."""
 
     def finish(self) -> object:
         """Close (the node has stopped publishing)."""
@@ -227,27 +233,39 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
         except STOP_EXCEPTIONS:
             pass
         finally:
-            if node is not None:
-                hot = hot_path(node)
-                if hot is not None:
-                    hot.stop()  # the hot thread ends before the node's entities go
-                close_nodes([node])
-            if extra is not None:
-                status = _finish(extra, ran) or status
+            # before the node's entities go: a failure in rclpy's teardown must not cost the
+            # node's part of the bag
+            closing = _Finish(extra, ran)
+            try:
+                if node is not None:
+                    hot = hot_path(node)
+                    if hot is not None:
+                        hot.stop()  # the hot thread ends before the node's entities go
+                    close_nodes([node], closing)
+            finally:
+                closing()
+            status = closing.status or status
     return status
 
 
-def _finish(extra: Attachment, ran: bool) -> int:
-    """Finish (or, if the node never ran, abort) ``extra``; a configuration-error status if
-    finishing failed, else 0."""
-    if not ran:
-        extra.abort()
-        return 0
-    try:
-        extra.finish()
-    except DcsmsError as exc:
-        return config_error(exc)
-    return 0
+class _Finish:
+    """Finish (or, if the node never ran, abort) an attachment, once; ``status`` is a
+    configuration-error status if finishing failed, else 0."""
+
+    def __init__(self, extra: Attachment | None, ran: bool) -> None:
+        self.extra, self.ran, self.status = extra, ran, 0
+
+    def __call__(self) -> None:
+        extra, self.extra = self.extra, None
+        if extra is None:
+            return
+        if not self.ran:
+            extra.abort()
+            return
+        try:
+            extra.finish()
+        except DcsmsError as exc:
+            self.status = config_error(exc)
 
 
 def main_for(factory: Callable[..., Node],

@@ -86,3 +86,25 @@ def test_a_child_runs_at_the_niceness_it_asks(nice: int, tmp_path: Path) -> None
     base = os.nice(0)
     assert int((tmp_path / "asked.log").read_text()) == min(base + nice, 19)
     assert int((tmp_path / "plain.log").read_text()) == base
+
+
+def test_every_process_that_did_not_exit_cleanly_is_named(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """After the stop, a process that failed while closing or was killed gets one line each
+    and the run's status 1; clean exits say nothing."""
+    kids = [deploy.Child("clean", [sys.executable, "-c", "pass"]),
+            deploy.Child("failed", [sys.executable, "-c", "raise SystemExit(3)"]),
+            deploy.Child("killed", [sys.executable, "-c", "import time; time.sleep(60)"])]
+    deploy.start(kids, tmp_path, verbose=False)
+    assert kids[2].proc is not None
+    kids[2].proc.kill()
+    for k in kids:
+        assert k.proc is not None
+        k.proc.wait(30.0)
+    assert deploy.report_exits(kids) == 1
+    err = capsys.readouterr().err.splitlines()
+    logs = {k.name: tmp_path / f"{k.name}.log" for k in kids}
+    assert err == [f"dcsms up: failed exited with status 3 (its log: {logs['failed']})",
+                   f"dcsms up: killed was killed by SIGKILL (its log: {logs['killed']})"]
+    assert deploy.report_exits(kids[:1]) == 0
+    assert capsys.readouterr().err == ""

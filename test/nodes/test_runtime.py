@@ -240,3 +240,37 @@ def test_a_loop_without_dds_subscriptions_sleeps_until_woken(ctx) -> None:
     finally:
         hot.stop()
         node.destroy_node()
+
+
+#: A node process whose node fails while being destroyed: its attachment (a recorded run's
+#: part) is finished first all the same. The node stops itself with SIGINT.
+FAILING_TEARDOWN = r"""
+import os, signal, sys
+from rclpy.node import Node
+from dcsms_ros.ros.runtime import run
+
+class Failing(Node):
+    def __init__(self, context):
+        super().__init__("failing_teardown", context=context)
+        self.create_timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT))
+
+    def destroy_node(self):
+        print("destroy", flush=True)
+        raise RuntimeError("teardown failed")
+
+class Part:
+    def finish(self):
+        print("finish", flush=True)
+
+    def abort(self):
+        print("abort", flush=True)
+
+sys.exit(run(Failing, ["x"], lambda node: Part()))
+"""
+
+
+def test_an_attachment_is_finished_before_the_node_is_destroyed(domain: int) -> None:
+    out = subprocess.run([sys.executable, "-c", FAILING_TEARDOWN], capture_output=True,
+                         text=True, timeout=60, check=False)
+    assert out.stdout.split() == ["finish", "destroy"], out.stderr[-2000:]
+    assert out.returncode != 0 and "teardown failed" in out.stderr

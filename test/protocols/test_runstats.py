@@ -41,7 +41,7 @@ def test_summary_from_a_plant_report_and_bag_counts() -> None:
     plant = {"sample": "4000", "overruns": "25", "late_steps": "5", "lockstep_timeouts": "10",
              "stale_samples": "7", "latency_p50_ms": "0.3100", "latency_p99_ms": "1.2000"}
     counts = {"/a": 4000, "/b": 3990, "/dcsms/mode": 3}
-    s = summarize(plant, counts, ["/a", "/b", "/c"])
+    s = summarize(plant, counts, ["/a", "/b"])
     assert (s.samples, s.late, s.stale, s.recorded, s.samples_x_streams) == (4000, 40, 7, 7990,
                                                                              8000)
     assert s.latency_p99_s == pytest.approx(1.2e-3)
@@ -49,7 +49,7 @@ def test_summary_from_a_plant_report_and_bag_counts() -> None:
                         "p50/p99 0.310/1.200 ms, recorded 7990 of 8000 messages")
     assert s.to_dict()["late_fraction"] == pytest.approx(40 / 4025)
     # real time: samples x streams is not what was published; the line does not say "of"
-    rt = summarize({**plant, "schedule": "realtime"}, counts, ["/a", "/b", "/c"])
+    rt = summarize({**plant, "schedule": "realtime"}, counts, ["/a", "/b"])
     assert rt.line().endswith("recorded 7990 stream messages (samples x streams = 8000)")
     assert not rt.to_dict()["lockstep"]
     bare = summarize({"sample": "10"}, None, [])
@@ -61,12 +61,24 @@ def test_summary_against_what_was_published() -> None:
     of published (real time too); a stream without one falls back to the scale."""
     plant = {"sample": "4000", "schedule": "realtime", "stale_samples": "0"}
     counts = {"/a": 4000, "/b": 3890}
-    s = summarize(plant, counts, ["/a", "/b", "/c"], {"/a": 4000, "/b": 3950, "/x": 5})
+    s = summarize(plant, counts, ["/a", "/b"], {"/a": 4000, "/b": 3950, "/x": 5})
     assert (s.recorded, s.published, s.samples_x_streams) == (7890, 7950, 8000)
     assert s.line().endswith("recorded 7890 of 7950 messages")
     partial = summarize(plant, counts, ["/a", "/b"], {"/a": 4000})
     assert partial.published is None
     assert partial.line().endswith("recorded 7890 stream messages (samples x streams = 8000)")
+
+
+def test_a_stream_the_bag_lacks_counts_as_none_recorded() -> None:
+    """A stream asked for and absent from the bag (a node's part never closed) is not left
+    out of the line: its samples count, none recorded, and its publisher's count is unknown."""
+    plant = {"sample": "4000", "schedule": "realtime", "stale_samples": "0"}
+    s = summarize(plant, {"/a": 4000, "/b": 3890}, ["/a", "/b", "/c"],
+                  {"/a": 4000, "/b": 3950})
+    assert (s.recorded, s.published, s.samples_x_streams) == (7890, None, 12000)
+    assert s.line().endswith("recorded 7890 stream messages (samples x streams = 12000)")
+    lock = summarize({"sample": "4000"}, {"/a": 4000}, ["/a", "/c"])
+    assert lock.line().endswith("recorded 4000 of 8000 messages")
 
 
 @pytest.mark.parametrize(("late", "schedule", "warns"), [
