@@ -133,10 +133,13 @@ def recorder_command(out: str | Path, topics: Sequence[str] | None = None,
 
 
 def child_env() -> dict[str, str]:
-    """Environment of the processes: localhost discovery, unbuffered, plain logs."""
+    """Environment of the processes: localhost discovery, unbuffered, plain logs, and a
+    Python traceback in the log if one crashes in native code (a process that died of a
+    signal otherwise leaves nothing there: :func:`report_exits` names the signal)."""
     env = dict(os.environ)
     keep_discovery_local(env)
     env["PYTHONUNBUFFERED"] = "1"
+    env.setdefault("PYTHONFAULTHANDLER", "1")
     env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
     return env
 

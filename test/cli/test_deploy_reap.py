@@ -88,13 +88,19 @@ def test_a_child_runs_at_the_niceness_it_asks(nice: int, tmp_path: Path) -> None
     assert int((tmp_path / "plain.log").read_text()) == base
 
 
+#: A process that dies of SIGSEGV in native code, called from a Python function ``native``.
+CRASH = "import ctypes\ndef native(): ctypes.string_at(0)\nnative()"
+
+
 def test_every_process_that_did_not_exit_cleanly_is_named(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """After the stop, a process that failed while closing or was killed gets one line each
-    and the run's status 1; clean exits say nothing."""
+    """After the stop, a process that failed while closing, crashed or was killed gets one
+    line each and the run's status 1; clean exits say nothing. A native crash leaves a Python
+    traceback in the process's log."""
     kids = [deploy.Child("clean", [sys.executable, "-c", "pass"]),
             deploy.Child("failed", [sys.executable, "-c", "raise SystemExit(3)"]),
-            deploy.Child("killed", [sys.executable, "-c", "import time; time.sleep(60)"])]
+            deploy.Child("killed", [sys.executable, "-c", "import time; time.sleep(60)"]),
+            deploy.Child("crashed", [sys.executable, "-c", CRASH])]
     deploy.start(kids, tmp_path, verbose=False)
     assert kids[2].proc is not None
     kids[2].proc.kill()
@@ -105,6 +111,9 @@ def test_every_process_that_did_not_exit_cleanly_is_named(
     err = capsys.readouterr().err.splitlines()
     logs = {k.name: tmp_path / f"{k.name}.log" for k in kids}
     assert err == [f"dcsms up: failed exited with status 3 (its log: {logs['failed']})",
-                   f"dcsms up: killed was killed by SIGKILL (its log: {logs['killed']})"]
+                   f"dcsms up: killed was killed by SIGKILL (its log: {logs['killed']})",
+                   f"dcsms up: crashed was killed by SIGSEGV (its log: {logs['crashed']})"]
+    crash = logs["crashed"].read_text()
+    assert "Segmentation fault" in crash and "in native" in crash, crash
     assert deploy.report_exits(kids[:1]) == 0
     assert capsys.readouterr().err == ""
