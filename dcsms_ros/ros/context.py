@@ -29,7 +29,9 @@ Jazzy's rules in one place:
 
 from __future__ import annotations
 
+import os
 import signal
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -39,6 +41,7 @@ from typing import Any
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from dcsms_ros.ros.transport import loopback_over_udp
@@ -49,6 +52,16 @@ from dcsms_ros.rosenv import keep_discovery_local
 STOP_EXCEPTIONS: tuple[type[BaseException], ...] = (KeyboardInterrupt, ExternalShutdownException)
 #: Longest wait (s) of one :func:`spin_until` round, so a stop request is seen that soon.
 POLL_S = 0.1
+#: The same for a node process's spin loop, which everything that ends it wakes (a stop
+#: signal through :attr:`RosSession.wakers`, the node's finish, a failed hot path): only a
+#: safety net. Every round rebuilds the executor's wait set in Python holding the GIL, and the
+#: process's hot thread (SCHED_FIFO) that needs the GIL meanwhile waits until the executor's
+#: thread, preempted by the control path's other hot threads, runs again: 0.2-0.35 ms.
+#: 4 alternating pairs of 20 s per-process runs: late samples 147-254 against 262-328, fewer
+#: in every pair. Composed (the executor on the driver's core), 6 pairs showed no gain (late
+#: 15-90 against 7-66), so the composed host keeps :data:`POLL_S` (docs/performance.md,
+#: "The executor's poll held the GIL").
+HOST_POLL_S = 1.0
 #: The signals that ask a process to stop.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -75,10 +88,45 @@ class StopFlag:
 @dataclass(frozen=True)
 class RosSession:
     """What :func:`ros_context` yields: the initialised context and the stop flag (never set
-    when the session does not handle signals)."""
+    when the session does not handle signals).
+
+    ``wakers``: called (from another thread) as soon as a stop signal arrives, before the
+    flag is set: a thread blocked in an executor's wait runs Python's signal handler only once
+    that wait returns, so a spin loop registers a :func:`round_ender` here.
+    """
 
     context: Context
     stop: StopFlag = field(default_factory=StopFlag)
+    wakers: list[Callable[[], object]] = field(default_factory=list)
+
+    def wake(self) -> None:
+        """Call every registered waker."""
+        for fn in list(self.wakers):
+            fn()
+
+
+class _SignalWake:
+    """Calls ``session.wake()`` when a signal arrives: the C-level handler writes its number
+    to a pipe at once (:func:`signal.set_wakeup_fd`), wherever the main thread is blocked;
+    a thread reads it."""
+
+    def __init__(self, session: RosSession) -> None:
+        self._r, self._w = os.pipe()
+        os.set_blocking(self._w, False)
+        self._old = signal.set_wakeup_fd(self._w, warn_on_full_buffer=False)
+        self._thread = threading.Thread(target=self._run, args=(session,), name="signal-wake",
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self, session: RosSession) -> None:
+        while os.read(self._r, 64):  # empty: the write end is closed
+            session.wake()
+
+    def close(self) -> None:
+        signal.set_wakeup_fd(self._old)
+        os.close(self._w)
+        self._thread.join(1.0)
+        os.close(self._r)
 
 
 @contextmanager
@@ -93,7 +141,8 @@ def ros_context(args: Sequence[str] | None = None, signals: bool = False,
         In-process clients pass ``[]`` so that the caller's own options are not read.
     signals : bool
         True: SIGINT and SIGTERM set the session's :class:`StopFlag` until the block ends
-        (a node process, the recorder). False: leave the process's handlers alone.
+        (a node process, the recorder), and any signal calls its ``wakers`` at once. False:
+        leave the process's handlers alone.
     context : Context, optional
         A fresh (uninitialised) context to initialise, e.g. a composed host's
         :class:`~.hotpath.DrivenContext`; default: a new plain one.
@@ -111,6 +160,7 @@ def ros_context(args: Sequence[str] | None = None, signals: bool = False,
     keep_discovery_local()
     session = RosSession(context if context is not None else Context())
     old = {s: signal.signal(s, session.stop) for s in STOP_SIGNALS} if signals else {}
+    waker = _SignalWake(session) if signals else None
     try:
         with loopback_over_udp():  # held while the caller creates its nodes (the participant)
             rclpy.init(args=None if args is None else list(args), context=session.context,
@@ -118,8 +168,17 @@ def ros_context(args: Sequence[str] | None = None, signals: bool = False,
             yield session
     finally:
         rclpy.try_shutdown(context=session.context)
+        if waker is not None:
+            waker.close()
         for s, h in old.items():
             signal.signal(s, h)
+
+
+def round_ender(node: Node) -> Callable[[], None]:
+    """A call, safe from any thread, that ends the current round of an executor spinning
+    ``node`` (a guard condition of ``node`` with an empty callback: rclpy's ``Executor.wake``
+    only makes the executor rebuild its wait set and wait on until the round's timeout)."""
+    return node.create_guard_condition(lambda: None).trigger
 
 
 def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float | None = None,
@@ -152,5 +211,5 @@ def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float | 
     return done()
 
 
-__all__ = ["POLL_S", "STOP_EXCEPTIONS", "STOP_SIGNALS", "RosSession", "StopFlag", "ros_context",
-           "spin_until"]
+__all__ = ["HOST_POLL_S", "POLL_S", "STOP_EXCEPTIONS", "STOP_SIGNALS", "RosSession", "StopFlag",
+           "ros_context", "round_ender", "spin_until"]

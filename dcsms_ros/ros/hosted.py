@@ -9,6 +9,7 @@ overrides what it has; a plain rclpy node (the recorder) has none of it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from dcsms_ros.ros.hotpath import HotPath
@@ -25,10 +26,14 @@ class Hosted:
     #: True once the node ended its run (e.g. the plant after ``duration_s``): the host stops
     #: spinning it.
     finished: bool = False
+    #: Set by the host: wakes its spin loop from any thread (the executor's ``wake``).
+    host_wake: Callable[[], object] | None = None
 
     def finish(self) -> None:
-        """Ask the host to stop spinning after the current callback."""
+        """Ask the host to stop spinning after the current callback (from any thread)."""
         self.finished = True
+        if self.host_wake is not None:
+            self.host_wake()
 
     def final_reports(self) -> list[SamplePublisher]:
         """Publish what is held back and the final counters (the host holds the hot path's

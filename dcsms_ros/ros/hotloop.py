@@ -32,6 +32,7 @@ import os
 import sys
 import threading
 import traceback
+from collections.abc import Callable
 from contextlib import ExitStack
 from typing import Protocol
 
@@ -113,6 +114,8 @@ class HotLoop:
         # this instead of an rcl wait set: ~2 us of CPU against ~33 us for rcl_wait(0)
         self._event = threading.Event()
         self.error: BaseException | None = None
+        #: Called (on the loop's thread) once it failed: the host wakes its spin loop.
+        self.on_error: Callable[[], object] | None = None
         self.rt_warning: str | None = None
         self.wakeups = 0
         self._subs: list[Subscription] = []
@@ -228,6 +231,8 @@ class HotLoop:
                 self.error = exc
                 self.paths[0].node.get_logger().error(
                     f"{self.name} failed:\n{traceback.format_exc()}")
+                if self.on_error is not None:
+                    self.on_error()
 
     def _loop(self) -> None:
         assert self._guard is not None

@@ -37,7 +37,14 @@ from rclpy.node import Node
 
 from dcsms_ros import graph
 from dcsms_ros.errors import DcsmsError
-from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
+from dcsms_ros.ros.context import (
+    HOST_POLL_S,
+    POLL_S,
+    STOP_EXCEPTIONS,
+    ros_context,
+    round_ender,
+    spin_until,
+)
 from dcsms_ros.ros.executor import HostExecutor
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import Hosted, hot_path
@@ -92,18 +99,28 @@ def wait_acked(pubs: Sequence[Any], total_s: float = ACK_WAIT_S) -> None:
 
 
 def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
-              rt_priority: int = 0) -> None:
+              rt_priority: int = 0, wake: Callable[[], None] | None = None) -> None:
     """Spin ``node`` (and its hot path, under SCHED_FIFO ``rt_priority`` if 1-99) until
     ``stop()`` is true, the node finished, or the context shut down; a failing hot-path
-    handler raises here, as a failing callback would."""
+    handler raises here, as a failing callback would.
+
+    ``wake``: a :func:`~.context.round_ender` of ``node`` that the caller also calls when
+    ``stop()`` becomes true; the node's finish and a failing hot path call it too, and the loop
+    then waits up to :data:`~.context.HOST_POLL_S` per round instead of
+    :data:`~.context.POLL_S`.
+    """
     serial = serialize(node)  # before the executor can run any of its callbacks
     if isinstance(node, GraphNode):  # its periodic jobs on one timer
         Housekeeper(executor).keep(node.jobs)
     executor.add_node(node)
+    if isinstance(node, Hosted):
+        node.host_wake = wake
     hot = hot_path(node)
     if hot is not None:
         settle_heap()
         hot.start()
+        if hot.loop is not None:
+            hot.loop.on_error = wake
         warning = hot.loop.prioritize(rt_priority) if hot.loop is not None else None
         if warning:
             node.get_logger().warning(warning)
@@ -114,7 +131,7 @@ def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
         return stop() or (isinstance(node, Hosted) and node.finished)
 
     try:
-        spin_until(executor, done)
+        spin_until(executor, done, poll_s=POLL_S if wake is None else HOST_POLL_S)
     finally:
         report_hold(node, serial)
 
@@ -223,9 +240,11 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
             if rt_warning:
                 node.get_logger().warning(rt_warning)
             executor = HostExecutor(context=ros.context)
+            wake = round_ender(node)
+            ros.wakers.append(wake)
             try:
                 ran = True
-                spin_node(node, executor, lambda: bool(ros.stop), rt_priority)
+                spin_node(node, executor, lambda: bool(ros.stop), rt_priority, wake)
             finally:
                 executor.shutdown(timeout_sec=2.0)
         except DcsmsError as exc:

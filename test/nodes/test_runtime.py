@@ -274,3 +274,46 @@ def test_an_attachment_is_finished_before_the_node_is_destroyed(domain: int) -> 
                          text=True, timeout=60, check=False)
     assert out.stdout.split() == ["finish", "destroy"], out.stderr[-2000:]
     assert out.returncode != 0 and "teardown failed" in out.stderr
+
+
+#: A node process whose spin loop would poll once a minute: a stop signal, or the node's own
+#: finish from another thread (``finish``), must wake it; it prints when it spins.
+WOKEN = r"""
+import sys, threading
+from rclpy.node import Node
+from dcsms_ros.ros import runtime
+from dcsms_ros.ros.hosted import Hosted
+
+runtime.HOST_POLL_S = 60.0
+
+class Idle(Hosted, Node):
+    def __init__(self, context):
+        super().__init__("woken", context=context)
+        self.timer = self.create_timer(0.2, self._spinning)
+
+    def _spinning(self):
+        self.timer.cancel()  # nothing else wakes the executor
+        print("spinning", flush=True)
+        if sys.argv[1] == "finish":
+            threading.Timer(0.2, self.finish).start()
+
+sys.exit(runtime.run(Idle, ["x"]))
+"""
+
+
+@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "finish"])
+def test_what_ends_a_node_process_wakes_its_spin_loop(domain: int, how: str) -> None:
+    """The host's spin loop waits up to HOST_POLL_S (60 s here) per round; a stop signal
+    (through the signal wake-up pipe) and the node's finish (its host_wake) end it at once."""
+    proc = subprocess.Popen([sys.executable, "-c", WOKEN, how], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == "spinning"
+        if how != "finish":
+            proc.send_signal(getattr(signal, how))
+        assert proc.wait(timeout=30.0) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
