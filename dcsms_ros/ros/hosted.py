@@ -26,7 +26,8 @@ class Hosted:
     #: True once the node ended its run (e.g. the plant after ``duration_s``): the host stops
     #: spinning it.
     finished: bool = False
-    #: Set by the host: wakes its spin loop from any thread (the executor's ``wake``).
+    #: Set by the host: ends its spin loop's current round from any thread
+    #: (:func:`~.context.round_ender`).
     host_wake: Callable[[], object] | None = None
 
     def finish(self) -> None:
