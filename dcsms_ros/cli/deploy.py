@@ -12,8 +12,9 @@ Two deployments of the same nodes:
 Both read one params file (:meth:`GraphSpec.params_document`). A recorder (``--record``) runs as
 its own process, or inside the composed process (``recorder="composed"``, the default: it takes
 the messages from the process's bus, every one, without DDS). Stop: every process
-gets SIGINT, then SIGTERM and SIGKILL after a timeout; the graph first, so the recorder receives
-everything it published. Node logs go to files in ``log_dir`` unless ``verbose``.
+gets SIGINT, then SIGTERM, SIGABRT (a stuck process writes its threads' stacks into its log)
+and SIGKILL after timeouts; the graph first, so the recorder receives everything it published.
+Node logs go to files in ``log_dir`` unless ``verbose``.
 
 Every child runs in a session of its own (the terminal's Ctrl-C reaches only the parent, which
 stops them in order), so nothing the terminal does reaches it; if the parent dies without
@@ -58,6 +59,8 @@ from dcsms_ros.rosenv import keep_discovery_local
 STOP_TIMEOUTS = (5.0, 2.0)
 #: The same for the recorder, which writes its whole backlog first (recorder.DRAIN_MAX_S).
 RECORDER_STOP_TIMEOUTS = (40.0, 5.0)
+#: Seconds a child still running after both gets to write its threads' stacks (SIGABRT).
+ABORT_TIMEOUT_S = 2.0
 RECORDERS = ("process", "composed")
 #: The recorder process's bag among a per-process run's parts (:func:`parts_dir`).
 RECORDER_PART = "recorder"
@@ -80,6 +83,8 @@ class Child:
     env: dict[str, str] = field(default_factory=dict)
     #: added to the process's niceness (0: the parent's)
     nice: int = 0
+    #: the last signal :func:`stop` sent it
+    stopped_by: signal.Signals | None = None
 
 
 def node_argv(spec: GraphSpec, name: str, params_file: Path) -> list[str]:
@@ -187,13 +192,16 @@ def start(kids: Sequence[Child], log_dir: Path, verbose: bool) -> None:
 
 
 def stop(kids: Sequence[Child], timeouts: tuple[float, float] = STOP_TIMEOUTS) -> None:
-    """SIGINT to every running child, then SIGTERM, then SIGKILL after the timeouts."""
+    """SIGINT to every running child, then SIGTERM, then SIGABRT, then SIGKILL after the
+    timeouts. SIGABRT makes a stuck child's fault handler (``PYTHONFAULTHANDLER``, set by
+    :func:`child_env`) write every thread's stack into its log, so a hang can be told apart."""
     for sig, timeout in ((signal.SIGINT, timeouts[0]), (signal.SIGTERM, timeouts[1]),
-                         (signal.SIGKILL, 5.0)):
+                         (signal.SIGABRT, ABORT_TIMEOUT_S), (signal.SIGKILL, 5.0)):
         alive = [k for k in kids if k.proc is not None and k.proc.poll() is None]
         if not alive:
             return
         for k in alive:
+            k.stopped_by = sig
             try:
                 k.proc.send_signal(sig)  # type: ignore[union-attr]
             except ProcessLookupError:
@@ -345,7 +353,10 @@ def report_exits(kids: Sequence[Child]) -> int:
             continue
         how = (f"was killed by {signal.Signals(-code).name}" if code < 0 and
                -code in signal.valid_signals() else f"exited with status {code}")
-        print(f"dcsms up: {kid.name} {how}" + (f" (its log: {kid.log})" if kid.log else ""),
+        log = f"its log: {kid.log}"
+        if code == -signal.SIGABRT and kid.stopped_by is signal.SIGABRT:
+            how, log = "did not stop and was aborted", f"its threads' stacks are in {log}"
+        print(f"dcsms up: {kid.name} {how}" + (f" ({log})" if kid.log else ""),
               file=sys.stderr, flush=True)
         status = 1
     return status

@@ -4,7 +4,8 @@ The graph is :func:`dcsms_ros.graph.define_graph` of the configuration (``--conf
 ``--set``), in namespace ``--namespace``; it runs one process per node (the ``ros2 run``
 deployment, default) or ``--composed`` (every node in one process, one driver thread for the
 per-sample cycle); :mod:`dcsms_ros.cli.deploy` starts and stops it. Ctrl-C or SIGTERM: every
-process gets SIGINT, then SIGTERM and SIGKILL after a timeout; exit status 0 and no traceback.
+process gets SIGINT, then SIGTERM, SIGABRT (its threads' stacks into its log) and SIGKILL after
+timeouts; exit status 0 and no traceback.
 Node logs go to files in ``--log-dir`` (shown at start) unless ``--verbose``.
 """
 

@@ -117,3 +117,32 @@ def test_every_process_that_did_not_exit_cleanly_is_named(
     assert "Segmentation fault" in crash and "in native" in crash, crash
     assert deploy.report_exits(kids[:1]) == 0
     assert capsys.readouterr().err == ""
+
+
+#: A process that ignores SIGINT and SIGTERM and blocks in a Python function ``stuck``.
+STUCK = ("import signal, time\n"
+         "for s in (signal.SIGINT, signal.SIGTERM): signal.signal(s, signal.SIG_IGN)\n"
+         "def stuck(): time.sleep(60)\n"
+         "print('ready', flush=True)\nstuck()")
+
+
+def test_a_child_that_does_not_stop_leaves_its_stacks_in_its_log(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A child that ignores SIGINT and SIGTERM is aborted before it is killed: its fault
+    handler writes where each of its threads waited into its log, and the report says so."""
+    kid = deploy.Child("stuck", [sys.executable, "-c", STUCK])
+    deploy.start([kid], tmp_path, verbose=False)
+    log = tmp_path / "stuck.log"
+    end = time.monotonic() + 30.0
+    while "ready" not in log.read_text() and time.monotonic() < end:
+        time.sleep(0.05)
+    t0 = time.monotonic()
+    deploy.stop([kid], (0.5, 0.5))
+    assert kid.proc is not None and kid.proc.returncode == -signal.SIGABRT
+    assert time.monotonic() - t0 < 0.5 + 0.5 + deploy.ABORT_TIMEOUT_S + 1.0
+    text = log.read_text()
+    assert "Fatal Python error: Aborted" in text and "in stuck" in text, text
+    assert deploy.report_exits([kid]) == 1
+    assert capsys.readouterr().err.strip() == (
+        f"dcsms up: stuck did not stop and was aborted (its threads' stacks are in its log: "
+        f"{log})")

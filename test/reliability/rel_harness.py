@@ -25,7 +25,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from dcsms_ros.cli.deploy import Child, child_env, children
+from dcsms_ros.cli.deploy import Child, child_env, children, stop
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode
@@ -146,19 +146,18 @@ class Graph:
         return "\n".join(p.read_text(errors="replace") for p in self.tmp.glob("*.log"))
 
     def stop(self) -> dict[str, int | None]:
-        """SIGINT every node, then SIGKILL after 10 s; exit status per node."""
+        """SIGINT every node (after SIGCONT), as ``dcsms up`` stops it; exit status per node.
+        A node still running 10 s later is aborted, and the stacks its fault handler wrote
+        are printed (pytest shows them with a failure)."""
         alive = [k for k in self.kids.values() if k.proc and k.proc.poll() is None]
         for k in alive:
             os.kill(k.proc.pid, signal.SIGCONT)  # type: ignore[union-attr]
-            k.proc.send_signal(signal.SIGINT)  # type: ignore[union-attr]
-        out: dict[str, int | None] = {}
-        for k in self.kids.values():
-            try:
-                out[k.name] = k.proc.wait(10) if k.proc else None
-            except subprocess.TimeoutExpired:
-                k.proc.kill()  # type: ignore[union-attr]
-                out[k.name] = k.proc.wait(5)  # type: ignore[union-attr]
-        return out
+        stop(alive, (10.0, 1.0))
+        for k in alive:
+            if k.stopped_by is not signal.SIGINT and k.log is not None:
+                print(f"--- {k.name} did not stop after SIGINT (exit {k.proc.returncode}); "  # type: ignore[union-attr]
+                      f"the end of its log:\n{k.log.read_text(errors='replace')[-8000:]}")
+        return {k.name: k.proc.returncode if k.proc else None for k in self.kids.values()}
 
 
 def _deep(depth: int = 5000, reliable: bool = True) -> QoSProfile:
