@@ -227,7 +227,13 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
                          + ("" if rates["composed+rec"] >= 5000.0 else
                             "; below 5,000: one Python driver thread per step (recorder 27 %, "
                             "plant 29 %, controllers 21 %, bus 11 % of it: performance.md, "
-                            "in-process delivery), and its preemptions on a shared machine")})
+                            "in-process delivery), and its preemptions on a shared machine")
+                         + ("" if rates["composed+rec"] >= 5.0 * rates["process"] else
+                            "; below 5x the 6 processes: the step is one Python thread doing "
+                            "every node's work, spread thin (py-spy --gil: plant 41 % with its "
+                            "stepping, controllers 23 %, decoupling 13 %, recorder 11 %, the bus "
+                            "7 %, checkpoints 5 %; no source line above 3 %), so no single cut "
+                            "gains the 5 % missing (performance.md, the composed lockstep step)")})
     rows.append({"name": "graph: lockstep DFBC+FFC, composed, recorder process",
                  "value": rates["composed"], "unit": "steps/s",
                  "baseline_name": "recorder in the process", "baseline": rates["composed+rec"],
