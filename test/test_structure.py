@@ -24,6 +24,7 @@ ALLOWED: dict[str, set[str]] = {
     "errors": set(),
     "jsonutil": set(),
     "rosenv": set(),
+    "stopsignals": set(),
     "markers": {"errors"},
     "cdr": {"errors"},
     "core": {"errors"},
@@ -31,9 +32,9 @@ ALLOWED: dict[str, set[str]] = {
     "analysis": {"core", "errors", "jsonutil", "cdr"},
     "design": {"core", "analysis", "errors"},
     "graph": {"core", "errors"},
-    "ros": {"core", "protocols", "graph", "errors", "jsonutil", "cdr", "rosenv"},
+    "ros": {"core", "protocols", "graph", "errors", "jsonutil", "cdr", "rosenv", "stopsignals"},
     "nodes": {"ros", "core", "analysis", "protocols", "graph", "errors", "jsonutil", "cdr",
-              "rosenv"},
+              "rosenv", "stopsignals"},
 }
 #: Parts that never import ROS (rclpy, message packages), not even inside a function.
 ROS_FREE = set(ALLOWED) - {"nodes", "ros"}

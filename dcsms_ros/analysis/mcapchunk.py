@@ -3,6 +3,7 @@ it goes to the file (chunk record, then one message index per channel)."""
 
 from __future__ import annotations
 
+import time
 import zlib
 from array import array
 from dataclasses import dataclass, field
@@ -29,6 +30,8 @@ class Chunk:
     singles: dict[int, array[int]] = field(default_factory=dict)
     t0: int = 2**63 - 1
     t1: int = 0
+    #: when the chunk was opened (``time.monotonic``, s)
+    born: float = field(default_factory=time.monotonic)
 
     @property
     def size(self) -> int:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import shutil
 import threading
+import time
 from array import array
 from collections.abc import Sequence
 from pathlib import Path
@@ -52,6 +53,11 @@ from dcsms_ros.errors import BagError
 CHUNK_BYTES = 4 << 20
 #: zstd level of the chunks (1: fast, ~4x smaller on the graph's streams).
 ZSTD_LEVEL = 1
+#: Age (s) at which a deferred-flush writer's :meth:`~McapBagWriter.flush` closes the open
+#: chunk however small: a recorder killed before it closes its bag keeps on disk all but its
+#: last ~2 s (:mod:`.bagrecover` reads them back), not all but its last 4 MB (a low-rate
+#: topic's whole recording).
+CHUNK_MAX_AGE_S = 2.0
 
 
 class McapBagWriter:
@@ -69,7 +75,8 @@ class McapBagWriter:
         Leave full chunks for :meth:`flush` instead of compressing and writing them inside
         the :meth:`write` that filled them. A recorder in a composed process writes on the
         real-time driver thread, where closing a 4 MB chunk took 9-12 ms (a gap of 20+ samples
-        at 2 kHz, every 1.75 s); its executor calls :meth:`flush` instead.
+        at 2 kHz, every 1.75 s); its executor calls :meth:`flush` instead, which also closes a
+        chunk open for :data:`CHUNK_MAX_AGE_S`.
 
     Attributes
     ----------
@@ -266,8 +273,8 @@ class McapBagWriter:
 
     def flush(self) -> None:
         """Write what is queued: full chunks (compressed here) and new topics' records; the
-        open chunk stays open. Safe beside :meth:`write` in another thread, which it blocks
-        only to take the queue.
+        open chunk stays open (with ``defer_flush``, until it is :data:`CHUNK_MAX_AGE_S` old).
+        Safe beside :meth:`write` in another thread, which it blocks only to take the queue.
 
         Raises
         ------
@@ -276,6 +283,9 @@ class McapBagWriter:
         """
         with self._flock:
             with self._lock:
+                ch = self._chunk
+                if self.defer_flush and ch.size and time.monotonic() - ch.born >= CHUNK_MAX_AGE_S:
+                    self._close_chunk()
                 items, self._pending = self._pending, []
             self._emit(items)
 
@@ -287,6 +297,8 @@ class McapBagWriter:
                     self._write_chunk(item)
                 else:
                     self._f.write(item)
+            if items and self.defer_flush:  # in the file, not in this process's buffer
+                self._f.flush()
         except OSError as exc:
             self.abort()
             raise BagError(f"{self.path}: cannot write bag: {exc}") from None
@@ -388,4 +400,4 @@ class McapBagWriter:
             shutil.rmtree(self.staging, ignore_errors=True)
 
 
-__all__ = ["CHUNK_BYTES", "McapBagWriter"]
+__all__ = ["CHUNK_BYTES", "CHUNK_MAX_AGE_S", "McapBagWriter"]

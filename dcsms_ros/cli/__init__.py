@@ -25,8 +25,8 @@ from dcsms_ros.errors import DcsmsError
 from dcsms_ros.rosenv import keep_discovery_local
 
 #: Sub-command modules, in the order ``dcsms --help`` lists them.
-SUBCOMMANDS: tuple[str, ...] = ("model", "tune", "sim", "up", "mode", "record", "analyze",
-                                "fit", "export", "demo", "params")
+SUBCOMMANDS: tuple[str, ...] = ("model", "tune", "sim", "up", "mode", "record", "recover",
+                                "analyze", "fit", "export", "demo", "params")
 
 #: Exit status of a usage or configuration error (the argparse convention).
 EXIT_USAGE = 2

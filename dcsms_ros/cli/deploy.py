@@ -322,24 +322,30 @@ def records_in_nodes(composed: bool, recorder: str | None) -> bool:
 
 
 def merge_parts(parts: Path, bag: Path) -> int:
-    """Merge the finished parts in ``parts`` into ``bag`` and remove them; 0, or 1 (with one
-    line on stderr) if a part is missing or the merge failed (the parts are then kept)."""
+    """Merge the parts in ``parts`` into ``bag`` and remove them; 0, or 1 (with one line on
+    stderr each) if a part was not closed or the merge failed (the parts are then kept).
+
+    A part its process did not close (killed) is first recovered up to its last whole chunk
+    (:func:`~dcsms_ros.analysis.bagrecover.recover_parts`): what that process still held in
+    memory is lost, the rest is in the bag."""
     # deferred: rosbags' reader, which `dcsms --help` must not import
     from dcsms_ros.analysis.bagmerge import merge_bags  # noqa: PLC0415
+    from dcsms_ros.analysis.bagrecover import recover_parts  # noqa: PLC0415
 
-    done = sorted(d for d in parts.iterdir() if (d / "metadata.yaml").is_file())
-    left = sorted(d.name for d in parts.iterdir() if d not in done)
+    status = 0
     try:
-        merge_bags(done, bag)
+        for name, rec in recover_parts(parts).items():
+            print(f"dcsms up: warning: {name}'s part of the bag was not closed; recovered "
+                  f"{rec.messages} messages up to its last whole chunk (what the process still "
+                  f"held is lost; {rec.lost_bytes} bytes cut off)", file=sys.stderr)
+            status = 1
+        merge_bags(sorted(d for d in parts.iterdir() if (d / "metadata.yaml").is_file()), bag)
     except BagError as exc:
-        print(f"dcsms up: error: {exc}; the parts are kept in {parts}", file=sys.stderr)
-        return 1
-    if left:  # a process that did not close its part (killed): what it wrote is not in the bag
-        print(f"dcsms up: warning: unfinished parts not merged into {bag}: {', '.join(left)} "
-              f"(kept in {parts})", file=sys.stderr)
+        print(f"dcsms up: error: {exc}; the parts are kept in {parts} (`dcsms recover {bag}` "
+              f"merges them)", file=sys.stderr)
         return 1
     shutil.rmtree(parts, ignore_errors=True)
-    return 0
+    return status
 
 
 def report_exits(kids: Sequence[Child]) -> int:

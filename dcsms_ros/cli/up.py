@@ -3,9 +3,10 @@
 The graph is :func:`dcsms_ros.graph.define_graph` of the configuration (``--config`` plus every
 ``--set``), in namespace ``--namespace``; it runs one process per node (the ``ros2 run``
 deployment, default) or ``--composed`` (every node in one process, one driver thread for the
-per-sample cycle); :mod:`dcsms_ros.cli.deploy` starts and stops it. Ctrl-C or SIGTERM: every
-process gets SIGINT, then SIGTERM, SIGABRT (its threads' stacks into its log) and SIGKILL after
-timeouts; exit status 0 and no traceback.
+per-sample cycle); :mod:`dcsms_ros.cli.deploy` starts and stops it. Ctrl-C, SIGTERM or SIGHUP
+(the terminal closed; :mod:`dcsms_ros.stopsignals`): every process gets SIGINT, then SIGTERM,
+SIGABRT (its threads' stacks into its log) and SIGKILL after timeouts; exit status 0 and no
+traceback.
 Node logs go to files in ``--log-dir`` (shown at start) unless ``--verbose``.
 """
 
@@ -32,6 +33,7 @@ from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode, parse_mode
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import GraphSpec, define_graph
+from dcsms_ros.stopsignals import STOP_SIGNALS, StopFlag
 
 
 def add_deploy_options(p: argparse.ArgumentParser, composed: bool = False) -> None:
@@ -169,20 +171,16 @@ def launch(spec: GraphSpec, args: argparse.Namespace, events: Sequence[tuple[flo
                      verbose=verbose, connect_timeout=getattr(args, "connect_timeout", 60.0),
                      expect_finish=expect_finish, events=events)
 
-    stop = {"signal": 0}
-
-    def on_signal(signum: int, frame: Any) -> None:
-        stop["signal"] = signum
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    stop = StopFlag()
+    old = {s: signal.signal(s, stop) for s in STOP_SIGNALS}
     try:
-        status = run_graph(spec, how, lambda: stop["signal"] != 0, rate_hz,
+        status = run_graph(spec, how, lambda: bool(stop), rate_hz,
                            announce=lambda k: print(
                                f"dcsms up: {spec.schedule}, "
                                f"{'composed, ' if args.composed else ''}{k} "
                                f"process{'es' if k > 1 else ''}, namespace {spec.namespace}, "
                                f"logs in {log_dir}", flush=True))
-        if status == 0 and stop["signal"] and interrupted_status is not None:
+        if status == 0 and stop and interrupted_status is not None:
             return interrupted_status
         return status
     finally:

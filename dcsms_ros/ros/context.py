@@ -17,9 +17,10 @@ Jazzy's rules in one place:
 - rclpy's signal handlers are never installed (``SignalHandlerOptions.NO``): on SIGINT they shut
   the context down inside the handler, before the nodes publish their final reports, the
   recorder drains its readers or the composed graph lets its callbacks finish. With
-  ``signals=True`` SIGINT and SIGTERM only set :class:`StopFlag` and :func:`spin_until` returns;
-  the previous handlers come back on exit. ``ros2 run`` forwards Ctrl-C to its process group
-  only, and ``dcsms up`` signals each child itself, so every node process handles both signals.
+  ``signals=True`` SIGINT, SIGTERM and SIGHUP only set :class:`StopFlag` and :func:`spin_until`
+  returns; the previous handlers come back on exit. ``ros2 run`` forwards Ctrl-C to its process
+  group only, and ``dcsms up`` signals each child itself, so every node process handles them
+  all (:mod:`dcsms_ros.stopsignals`: a closed terminal stops a node as Ctrl-C does).
   With ``signals=False`` the caller's handlers stay (``dcsms up`` keeps its own flag; in
   ``dcsms mode`` Ctrl-C raises ``KeyboardInterrupt``, exit 130).
 - A ``main()`` still counts :data:`STOP_EXCEPTIONS` as a normal end (exit status 0):
@@ -36,7 +37,6 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any
 
 import rclpy
 from rclpy.context import Context
@@ -46,6 +46,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from dcsms_ros.ros.transport import loopback_over_udp
 from dcsms_ros.rosenv import keep_discovery_local
+from dcsms_ros.stopsignals import STOP_SIGNALS, StopFlag
 
 #: Exceptions that end a ROS process normally: Ctrl-C where rclpy or Python raised it, and a
 #: context shut down under a spinning executor.
@@ -62,29 +63,6 @@ POLL_S = 0.1
 #: 15-90 against 7-66), so the composed host keeps :data:`POLL_S` (docs/performance.md,
 #: "The executor's poll held the GIL").
 HOST_POLL_S = 1.0
-#: The signals that ask a process to stop.
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
-class StopFlag:
-    """Signal handler that records the first stop request instead of raising.
-
-    ``signum`` is 0 until a signal arrives; ``at_ns`` is then its system-clock time (ns, the
-    clock of DDS receive times: the recorder keeps what was received before it). True once set.
-    """
-
-    def __init__(self) -> None:
-        self.signum = 0
-        self.at_ns = 0
-
-    def __call__(self, signum: int, frame: Any) -> None:
-        if not self.signum:
-            self.signum, self.at_ns = signum, time.time_ns()
-
-    def __bool__(self) -> bool:
-        return self.signum != 0
-
-
 @dataclass(frozen=True)
 class RosSession:
     """What :func:`ros_context` yields: the initialised context and the stop flag (never set
@@ -140,7 +118,7 @@ def ros_context(args: Sequence[str] | None = None, signals: bool = False,
         Command line for ``rclpy.init`` (``--ros-args`` ...); None: ``sys.argv``, as rclpy.
         In-process clients pass ``[]`` so that the caller's own options are not read.
     signals : bool
-        True: SIGINT and SIGTERM set the session's :class:`StopFlag` until the block ends
+        True: SIGINT, SIGTERM and SIGHUP set the session's :class:`StopFlag` until the block ends
         (a node process, the recorder), and any signal calls its ``wakers`` at once. False:
         leave the process's handlers alone.
     context : Context, optional

@@ -19,6 +19,7 @@ from rosbags.rosbag2 import Reader
 
 from dcsms_ros import cdr
 from dcsms_ros.analysis.gaps import TopicStats
+from dcsms_ros.analysis.mcapwrite import CHUNK_MAX_AGE_S
 from dcsms_ros.cli import main
 from dcsms_ros.cli.deploy import bag_published
 from dcsms_ros.cli.record import recorder_command
@@ -51,9 +52,11 @@ class Graph:
         self.pubs = {t: self.node.create_publisher(TwistStamped, t, 1000) for t in (V1, V2)}
         self.sent = {V1: 0, V2: 0}
 
-    def start_recorder(self, wait: tuple[str, ...] = (V1, V2)) -> None:
+    def start_recorder(self, wait: tuple[str, ...] = (V1, V2), tty: int | None = None) -> None:
+        """``tty``: a terminal's descriptor for the recorder's output (default: pipes)."""
+        out = subprocess.PIPE if tty is None else tty
         self.proc = subprocess.Popen([*recorder_command(self.bag), "--json"], env=self.env,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                     stdout=out, stderr=out, text=True)
         end = time.monotonic() + 30.0
         while not recorder_ready(self.node, wait):
             assert self.proc.poll() is None, self.proc.communicate()
@@ -127,7 +130,8 @@ def _z(msgs: list[bytes]) -> np.ndarray:
     return cdr.decode_batch(cdr.TWIST_STAMPED, msgs).fields["twist"][:, 2]
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP],
+                         ids=["SIGINT", "SIGTERM", "SIGHUP"])
 def test_exact_counts_latched_and_clean_signal(graph: Graph, sig: int) -> None:
     """N messages and a latched mode recorded exactly, alike in rosbags and mcap; exit 0."""
     graph.mode.publish(String(data="FBC"))  # before the recorder exists: transient local
@@ -146,6 +150,42 @@ def test_exact_counts_latched_and_clean_signal(graph: Graph, sig: int) -> None:
     assert counts == {MODE: 1, V1: 3000, V2: 0} and not rep["gaps"]
     # what was published, from the writers' sequence numbers, left in the bag's metadata
     assert bag_published(graph.bag) == {MODE: 1, V1: 3000}
+
+
+def test_a_closed_terminal_stops_the_recording_cleanly(graph: Graph) -> None:
+    """The terminal of a recording closes (an SSH session dropped): the recorder gets SIGHUP,
+    closes its bag with every message as after Ctrl-C and exits 0, though its report can no
+    longer be printed there (a write to the terminal fails from the hang-up on)."""
+    master, slave = os.openpty()
+    try:
+        graph.start_recorder(tty=slave)
+    finally:
+        os.close(slave)
+    graph.stream(range(1000))
+    time.sleep(0.5)
+    os.close(master)  # the terminal is gone
+    assert graph.proc is not None
+    graph.proc.send_signal(signal.SIGHUP)
+    assert graph.proc.wait(30) == 0
+    msgs = _bag(graph.bag)
+    assert len(msgs[V1]) == 1000 and not msgs.get(V2)
+
+
+def test_a_killed_recorder_s_bag_is_recovered(graph: Graph,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """SIGKILL, no clean-up at all: the bag stays unfinished (``bag.partial``); `dcsms recover`
+    gives back every message received more than CHUNK_MAX_AGE_S before the kill, in order
+    (before it closed chunks by age, a slow recording's whole first 4 MB stayed in memory)."""
+    graph.start_recorder()
+    graph.stream(range(2000))
+    time.sleep(CHUNK_MAX_AGE_S + 1.0)  # the open chunk is older than that: flushed
+    assert graph.proc is not None
+    graph.proc.kill()
+    graph.proc.wait(10)
+    assert graph.bag.with_name("bag.partial").is_dir() and not graph.bag.exists()
+    assert main(["recover", str(graph.bag)]) == 0
+    assert "not closed; " in capsys.readouterr().out
+    np.testing.assert_array_equal(_z(_bag(graph.bag)[V1]), np.arange(2000))
 
 
 def test_signal_mid_stream_keeps_a_contiguous_prefix(graph: Graph) -> None:

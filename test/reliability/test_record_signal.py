@@ -1,4 +1,5 @@
-"""SIGINT/SIGTERM to `dcsms up --lockstep --record`: exit 0, bag complete to the last message."""
+"""SIGINT/SIGTERM/SIGHUP to `dcsms up --lockstep --record`: exit 0, bag complete to the last
+message."""
 
 from __future__ import annotations
 
@@ -55,7 +56,8 @@ def _read(bag: Path) -> tuple[Counter, dict[str, set[int]], dict[str, dict[str, 
 # Multi-process timing on a shared 2-core machine: a scheduling hiccup can miss a bound
 # once; two reruns keep CI meaningful (every attempt must fail for a red run).
 @pytest.mark.flaky(reruns=2, reruns_delay=2)
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP],
+                         ids=["SIGINT", "SIGTERM", "SIGHUP"])
 def test_signal_to_recording_graph_leaves_complete_bag(sig, ctx, cfg, tmp_path):
     """Signal mid-run: exit 0, no traceback, bag counts equal the publishers' final counters."""
     probe = Probe(ctx)
@@ -100,3 +102,40 @@ def test_signal_to_recording_graph_leaves_complete_bag(sig, ctx, cfg, tmp_path):
     raw = sorted(stamps[topics.SENSORS_RAW])
     assert raw[0] == 0 and len(raw) in (k, k + 1), (raw[:3], len(raw), k)
     assert counts[topics.MODE] >= 1 and counts.get("/dcsms/config", 0) >= 1
+
+
+def test_a_killed_up_leaves_parts_that_recover_merges(ctx, cfg, tmp_path):
+    """SIGKILL to `dcsms up --lockstep --record` (no clean-up of its own): its node and recorder
+    processes still close their parts (SIGTERM at their parent's death), which stay unmerged in
+    OUT.parts; `dcsms recover OUT` merges them into a bag whose streams run from sample 0 with
+    no gap."""
+    probe = Probe(ctx)
+    bag, logs = tmp_path / "bag", tmp_path / "logs"
+    up = subprocess.Popen([*DCSMS, "up", "--lockstep", "--mode", "DFBC+FFC", "--record",
+                           str(bag), "--log-dir", str(logs)], stdout=subprocess.DEVNULL,
+                          stderr=subprocess.PIPE, text=True)
+    try:
+        probe.wait(lambda: int(probe.value("plant_simulator", "sample", "0")) > 1500, 120.0,
+                   "lockstep graph recorded for a while")
+        up.kill()
+        up.wait(10)
+        parts = bag.with_name("bag.parts")
+        probe.wait(lambda: parts.is_dir() and len(list(parts.iterdir())) >= 2 and all(
+            (p / "metadata.yaml").is_file() for p in parts.iterdir()), 30.0,
+            "every part closed after its parent's death")
+    finally:
+        if up.poll() is None:
+            up.kill()
+        probe.close()
+    assert not bag.exists()
+    rec = subprocess.run([*DCSMS, "recover", str(bag)], capture_output=True, text=True,
+                         timeout=120, check=False)
+    assert rec.returncode == 0 and "not closed" not in rec.stdout, rec.stdout + rec.stderr
+    counts, stamps, _, _ = _read(bag)
+    period_ns = round(1e9 / cfg.plant.rate_hz)
+    raw = sorted(stamps[topics.SENSORS_RAW])
+    assert len(raw) > 1500 and raw == [k * period_ns for k in range(len(raw))], raw[:5]
+    for b in topics.body_names(cfg.plant.num_stages):
+        assert counts[topics.velocity_topic(b)] >= len(raw) - 2, counts
+    assert counts[topics.MODE] >= 1 and not bag.with_name("bag.parts").exists()
+    assert_clean("\n".join(p.read_text() for p in logs.glob("*.log")))
