@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
@@ -155,8 +156,20 @@ def ros_context(args: Sequence[str] | None = None, signals: bool = False,
 def round_ender(node: Node) -> Callable[[], None]:
     """A call, safe from any thread, that ends the current round of an executor spinning
     ``node`` (a guard condition of ``node`` with an empty callback: rclpy's ``Executor.wake``
-    only makes the executor rebuild its wait set and wait on until the round's timeout)."""
-    return node.create_guard_condition(lambda: None).trigger
+    only makes the executor rebuild its wait set and wait on until the round's timeout).
+    Once the node is destroyed it does nothing: the signal thread may run only after that (the
+    stop ran on in the main thread), or a second stop signal may come then, and the trigger
+    raised rclpy's ``InvalidHandle`` in that thread (a traceback in mode_switch's log, once in
+    a CI run of 2026-11-29)."""
+    guard = node.create_guard_condition(lambda: None)
+
+    def end_round() -> None:
+        try:
+            guard.trigger()
+        except _rclpy.InvalidHandle:  # the node is gone: no round left to end
+            pass
+
+    return end_round
 
 
 def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float | None = None,

@@ -301,7 +301,7 @@ sys.exit(runtime.run(Idle, ["x"]))
 """
 
 
-@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "finish"])
+@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "SIGHUP", "finish"])
 def test_what_ends_a_node_process_wakes_its_spin_loop(domain: int, how: str) -> None:
     """The host's spin loop waits up to HOST_POLL_S (60 s here) per round; a stop signal
     (through the signal wake-up pipe) and the node's finish (its host_wake) end it at once."""
@@ -317,3 +317,31 @@ def test_what_ends_a_node_process_wakes_its_spin_loop(domain: int, how: str) -> 
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+#: A node destroyed before a stop signal reaches the signal thread that wakes its spin loop:
+#: exit 1 if any thread raised.
+LATE_SIGNAL = r"""
+import os, signal, sys, threading, time
+from rclpy.node import Node
+from dcsms_ros.ros.context import ros_context, round_ender
+failed = []
+threading.excepthook = lambda args: failed.append(args.exc_value)
+with ros_context(["x"], signals=True) as ros:
+    node = Node("gone", context=ros.context)
+    ros.wakers.append(round_ender(node))
+    node.destroy_node()
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(0.5)
+print(repr(failed), flush=True)
+sys.exit(1 if failed else 0)
+"""
+
+
+def test_a_stop_signal_after_the_node_is_gone_is_harmless(domain: int) -> None:
+    """The waker of a destroyed node does nothing (it raised InvalidHandle in the signal
+    thread: a traceback in a node log)."""
+    out = subprocess.run([sys.executable, "-c", LATE_SIGNAL], capture_output=True, text=True,
+                         timeout=60, check=False)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "Traceback" not in out.stderr, out.stderr
