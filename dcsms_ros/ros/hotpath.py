@@ -98,6 +98,10 @@ class HotPath:
         self.bus: LocalBus | None = (context.bus if self.on and isinstance(
             context, DrivenContext) else None)
         self._inboxes: dict[Subscription, Inbox] = {}
+        #: each reader's topic (rclpy's ``topic_name`` enters the handle and asks rcl, for
+        #: every force reader at every plant tick; 3 alternating pairs of composed real-time
+        #: runs: the driver's CPU 256-271 us per sample against 268-273, a small gain)
+        self._topic_of: dict[Subscription, str] = {}
         self._served: list[tuple[Subscription, Callable[[Any], None]]] = []
         #: per served subscription: handle, message type, raw, handler, flush (read once, not
         #: per take)
@@ -201,7 +205,12 @@ class HotPath:
         """True if ``sub``'s messages come from DDS: no in-process writer of its topic, or
         it takes message objects (the bus carries serialized ones; such a reader is not
         counted as the process's own, so the writer publishes on DDS for it)."""
-        return self.bus is None or not sub.raw or not self.bus.has_publisher(sub.topic_name)
+        if self.bus is None or not sub.raw:
+            return True
+        topic = self._topic_of.get(sub)
+        if topic is None:
+            topic = self._topic_of[sub] = sub.topic_name
+        return not self.bus.has_publisher(topic)
 
     def unmatched(self, wanted: Collection[str] | None = None) -> list[str]:
         """Topics (those in ``wanted``, default every one) of the path's readers that take
