@@ -119,6 +119,7 @@ class HotLoop:
         self.rt_warning: str | None = None
         self.wakeups = 0
         self._subs: list[Subscription] = []
+        self._serving: list[Served] = []
         #: Native id of a thread to put on the driver's core under SCHED_FIFO (composed: the
         #: executor's thread; None: no pinning).
         self.share_core_with: int | None = None
@@ -143,7 +144,11 @@ class HotLoop:
         """Start the thread; ``rt_priority`` 1-99 puts it (only it) under SCHED_FIFO."""
         if self._thread is not None or not self.paths:
             return
-        self._subs = [s for p in self.paths for s in p.resolve()]  # before any thread runs
+        resolved = [(p, p.resolve()) for p in self.paths]  # before any thread runs
+        self._subs = [s for _, subs in resolved for s in subs]
+        # only these have anything to take: composed, most paths' topics are all in process,
+        # and a pass over every path took each one's lock for nothing
+        self._serving = [p for p, subs in resolved if subs]
         self._guard = GuardCondition(None, None, context=self.context)
         self.context.on_shutdown(self._on_shutdown)
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
@@ -242,7 +247,7 @@ class HotLoop:
             bus.owner = threading.get_ident()
         ws = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self.context.handle)
         first_node = self.paths[0].node
-        paths = self.paths
+        paths, serving = self.paths, self._serving
         with ExitStack() as stack:
             for s in subs:
                 stack.enter_context(s.handle)
@@ -274,10 +279,13 @@ class HotLoop:
                 if bus is None:
                     # one pass (each subscription emptied): a message a handler sends to a
                     # reader of this process makes the next wait return at once
-                    for p in paths:
+                    for p in serving:
                         p.serve()
                 while bus is not None and not self._stop:  # until a pass takes nothing
-                    n = sum(p.serve() for p in paths) + bus.dispatch()
+                    n = 0
+                    for p in serving:
+                        n += p.serve()
+                    n += bus.dispatch()
                     if bus.pending or not n:
                         break  # pending: a bounded round (ticks and the stop flag), then on
                 timeout = IDLE_S
