@@ -72,6 +72,7 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     ``on_running(kids)`` (e.g. a profiler attaching to ``kid.proc.pid``) is called once the
     plant steps."""
     from dcsms_ros.cli import deploy
+    from dcsms_ros.cli.parts import RECORDER_PART, merge_parts, parts_dir
     from dcsms_ros.core.config import load_config
     from dcsms_ros.core.modes import Mode
     from dcsms_ros.graph import (
@@ -94,9 +95,9 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     params, graph_file = deploy.write_files(spec, run_dir)
     bag = run_dir / "bag"
     rec: list[deploy.Child] = []
-    parts = deploy.parts_dir(bag)
+    parts = parts_dir(bag)
     if record in ("process", "parts"):
-        out = parts / deploy.RECORDER_PART if streams else bag
+        out = parts / RECORDER_PART if streams else bag
         rec = [deploy.Child("recorder", [*deploy.recorder_command(out, recorded, exclude=streams),
                                          "--queue-depth", str(LOCKSTEP_WRITER_DEPTH)])]
     if composed:
@@ -141,7 +142,7 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
         deploy.stop(kids, deploy.RECORDER_STOP_TIMEOUTS if record == "composed" else
                     deploy.STOP_TIMEOUTS)
         deploy.stop(rec, deploy.RECORDER_STOP_TIMEOUTS)
-        if streams and deploy.merge_parts(parts, bag):
+        if streams and merge_parts(parts, bag):
             raise RuntimeError(f"the parts in {parts} could not be merged")
     if plant.proc.returncode != 0 or not timing.exists():
         raise RuntimeError(f"plant exited {plant.proc.returncode}: "

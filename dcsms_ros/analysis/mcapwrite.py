@@ -54,9 +54,8 @@ CHUNK_BYTES = 4 << 20
 #: zstd level of the chunks (1: fast, ~4x smaller on the graph's streams).
 ZSTD_LEVEL = 1
 #: Age (s) at which a deferred-flush writer's :meth:`~McapBagWriter.flush` closes the open
-#: chunk however small: a recorder killed before it closes its bag keeps on disk all but its
-#: last ~2 s (:mod:`.bagrecover` reads them back), not all but its last 4 MB (a low-rate
-#: topic's whole recording).
+#: chunk: a recorder killed before it closed its bag lost its last ~2 s (:mod:`.bagrecover`
+#: reads the rest back), not its last 4 MB (a slow topic's whole recording).
 CHUNK_MAX_AGE_S = 2.0
 
 
@@ -75,8 +74,7 @@ class McapBagWriter:
         Leave full chunks for :meth:`flush` instead of compressing and writing them inside
         the :meth:`write` that filled them. A recorder in a composed process writes on the
         real-time driver thread, where closing a 4 MB chunk took 9-12 ms (a gap of 20+ samples
-        at 2 kHz, every 1.75 s); its executor calls :meth:`flush` instead, which also closes a
-        chunk open for :data:`CHUNK_MAX_AGE_S`.
+        at 2 kHz, every 1.75 s); its executor calls :meth:`flush` (:data:`CHUNK_MAX_AGE_S`).
 
     Attributes
     ----------
@@ -283,9 +281,8 @@ class McapBagWriter:
         """
         with self._flock:
             with self._lock:
-                ch = self._chunk
-                if self.defer_flush and ch.size and time.monotonic() - ch.born >= CHUNK_MAX_AGE_S:
-                    self._close_chunk()
+                if self.defer_flush and time.monotonic() - self._chunk.born >= CHUNK_MAX_AGE_S:
+                    self._close_chunk()  # an empty one stays open
                 items, self._pending = self._pending, []
             self._emit(items)
 

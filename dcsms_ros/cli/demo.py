@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 from dcsms_ros.analysis.paper import TABLE4, within
 from dcsms_ros.cli import EXIT_INTERRUPTED
 from dcsms_ros.cli.common import add_config_options, find_share_file, load_cfg, print_model_check
-from dcsms_ros.cli.deploy import records_in_nodes
+from dcsms_ros.cli.parts import records_in_nodes
 from dcsms_ros.cli.up import add_deploy_options, build_graph, check_deploy_options, launch
 from dcsms_ros.core.modes import ALL_MODES, Mode, parse_mode
 from dcsms_ros.errors import DcsmsError

@@ -29,7 +29,6 @@ import ctypes
 import fnmatch
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -42,6 +41,7 @@ from typing import Any
 import yaml
 
 from dcsms_ros.analysis.gaps import read_published
+from dcsms_ros.cli.parts import RECORDER_PART, merge_parts, parts_dir, records_in_nodes
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.errors import BagError
 from dcsms_ros.graph import (
@@ -62,8 +62,6 @@ RECORDER_STOP_TIMEOUTS = (40.0, 5.0)
 #: Seconds a child still running after both gets to write its threads' stacks (SIGABRT).
 ABORT_TIMEOUT_S = 2.0
 RECORDERS = ("process", "composed")
-#: The recorder process's bag among a per-process run's parts (:func:`parts_dir`).
-RECORDER_PART = "recorder"
 #: Niceness of a recorder process beside a real-time graph: the observer yields the CPU to the
 #: control path's threads under the normal scheduler (its DDS reception above all, which is what
 #: delivers a sample to a SCHED_FIFO hot thread). 5 alternating pairs of 20 s per-process runs:
@@ -309,45 +307,6 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     return status
 
 
-def parts_dir(bag: Path) -> Path:
-    """Where the processes of a recorded run of one process per node write their parts."""
-    return bag.with_name(bag.name + ".parts")
-
-
-def records_in_nodes(composed: bool, recorder: str | None) -> bool:
-    """True if a recorded run of this deployment records each per-sample topic in the node
-    process that publishes it (one process per node, the default recorder): then no
-    recorder process subscribes to those topics, and none is waited for."""
-    return not composed and (recorder or "composed") == "composed"
-
-
-def merge_parts(parts: Path, bag: Path) -> int:
-    """Merge the parts in ``parts`` into ``bag`` and remove them; 0, or 1 (with one line on
-    stderr each) if a part was not closed or the merge failed (the parts are then kept).
-
-    A part its process did not close (killed) is first recovered up to its last whole chunk
-    (:func:`~dcsms_ros.analysis.bagrecover.recover_parts`): what that process still held in
-    memory is lost, the rest is in the bag."""
-    # deferred: rosbags' reader, which `dcsms --help` must not import
-    from dcsms_ros.analysis.bagmerge import merge_bags  # noqa: PLC0415
-    from dcsms_ros.analysis.bagrecover import recover_parts  # noqa: PLC0415
-
-    status = 0
-    try:
-        for name, rec in recover_parts(parts).items():
-            print(f"dcsms up: warning: {name}'s part of the bag was not closed; recovered "
-                  f"{rec.messages} messages up to its last whole chunk (what the process still "
-                  f"held is lost; {rec.lost_bytes} bytes cut off)", file=sys.stderr)
-            status = 1
-        merge_bags(sorted(d for d in parts.iterdir() if (d / "metadata.yaml").is_file()), bag)
-    except BagError as exc:
-        print(f"dcsms up: error: {exc}; the parts are kept in {parts} (`dcsms recover {bag}` "
-              f"merges them)", file=sys.stderr)
-        return 1
-    shutil.rmtree(parts, ignore_errors=True)
-    return status
-
-
 def report_exits(kids: Sequence[Child]) -> int:
     """One line on stderr for each stopped process that did not exit cleanly (a node that
     failed while closing, or one killed after the stop timeouts: what it held back, its part
@@ -410,6 +369,6 @@ def bag_published(bag: Path) -> dict[str, int]:
 
 
 __all__ = ["RECORDERS", "Child", "Deployment", "bag_counts", "bag_published", "child_env",
-           "children", "composed_child", "merge_parts", "node_argv", "parts_dir",
-           "recorder_command", "records_in_nodes", "report_exits", "report_summary",
+           "children", "composed_child", "node_argv",
+           "recorder_command", "report_exits", "report_summary",
            "run_graph", "start", "stop", "write_files"]

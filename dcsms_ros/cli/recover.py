@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from dcsms_ros.cli.common import print_json
-from dcsms_ros.cli.deploy import parts_dir
+from dcsms_ros.cli.parts import parts_dir
 from dcsms_ros.errors import BagError
 
 

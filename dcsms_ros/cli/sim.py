@@ -29,7 +29,7 @@ from dcsms_ros.cli.common import (
     print_model_check,
     refuse_unstable_start,
 )
-from dcsms_ros.cli.deploy import records_in_nodes
+from dcsms_ros.cli.parts import records_in_nodes
 from dcsms_ros.cli.up import add_deploy_options, build_graph, check_deploy_options, launch
 from dcsms_ros.core.config import with_overrides
 from dcsms_ros.core.modes import parse_mode

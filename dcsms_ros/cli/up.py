@@ -27,7 +27,8 @@ from dcsms_ros.cli.common import (
     print_model_check,
     refuse_unstable_start,
 )
-from dcsms_ros.cli.deploy import RECORDERS, Deployment, records_in_nodes, run_graph
+from dcsms_ros.cli.deploy import RECORDERS, Deployment, run_graph
+from dcsms_ros.cli.parts import records_in_nodes
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode, parse_mode

@@ -12,7 +12,7 @@ import yaml
 from dcsms_ros import cdr
 from dcsms_ros.analysis import mcapwrite
 from dcsms_ros.analysis.mcapwrite import McapBagWriter
-from dcsms_ros.cli.deploy import RECORDER_PART, merge_parts, parts_dir
+from dcsms_ros.cli.parts import RECORDER_PART, merge_parts, parts_dir
 
 
 def _part(path: Path, topic: str, n: int) -> None:

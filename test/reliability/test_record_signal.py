@@ -53,6 +53,23 @@ def _read(bag: Path) -> tuple[Counter, dict[str, set[int]], dict[str, dict[str, 
     return counts, stamps, final, sim_times
 
 
+def _recording_up(probe: Probe, bag: Path, logs: Path) -> subprocess.Popen[str]:
+    """`dcsms up --lockstep --record BAG` (one process per node), once it recorded 1500
+    samples; killed if it fails before."""
+    up = subprocess.Popen([*DCSMS, "up", "--lockstep", "--mode", "DFBC+FFC", "--record",
+                           str(bag), "--log-dir", str(logs)], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, text=True)
+    try:
+        probe.wait(lambda: int(probe.value("plant_simulator", "sample", "0")) > 1500, 120.0,
+                   "lockstep graph recorded for a while")
+    except BaseException:
+        up.kill()
+        up.wait()
+        probe.close()
+        raise
+    return up
+
+
 # Multi-process timing on a shared 2-core machine: a scheduling hiccup can miss a bound
 # once; two reruns keep CI meaningful (every attempt must fail for a red run).
 @pytest.mark.flaky(reruns=2, reruns_delay=2)
@@ -62,12 +79,8 @@ def test_signal_to_recording_graph_leaves_complete_bag(sig, ctx, cfg, tmp_path):
     """Signal mid-run: exit 0, no traceback, bag counts equal the publishers' final counters."""
     probe = Probe(ctx)
     bag, logs = tmp_path / "bag", tmp_path / "logs"
-    up = subprocess.Popen([*DCSMS, "up", "--lockstep", "--mode", "DFBC+FFC", "--record",
-                           str(bag), "--log-dir", str(logs)], stdout=subprocess.PIPE,
-                          stderr=subprocess.PIPE, text=True)
+    up = _recording_up(probe, bag, logs)
     try:
-        probe.wait(lambda: int(probe.value("plant_simulator", "sample", "0")) > 1500, 120.0,
-                   "lockstep graph recorded for a while")
         t_sig = time.monotonic()
         up.send_signal(sig)
         out, err = up.communicate(timeout=60)
@@ -111,12 +124,8 @@ def test_a_killed_up_leaves_parts_that_recover_merges(ctx, cfg, tmp_path):
     no gap."""
     probe = Probe(ctx)
     bag, logs = tmp_path / "bag", tmp_path / "logs"
-    up = subprocess.Popen([*DCSMS, "up", "--lockstep", "--mode", "DFBC+FFC", "--record",
-                           str(bag), "--log-dir", str(logs)], stdout=subprocess.DEVNULL,
-                          stderr=subprocess.PIPE, text=True)
+    up = _recording_up(probe, bag, logs)
     try:
-        probe.wait(lambda: int(probe.value("plant_simulator", "sample", "0")) > 1500, 120.0,
-                   "lockstep graph recorded for a while")
         up.kill()
         up.wait(10)
         parts = bag.with_name("bag.parts")
