@@ -35,6 +35,20 @@ def _first_force(probe: Probe, act: int, k0: int, rate: float) -> int | None:
     return int(k[nz[0]]) if len(nz) else None
 
 
+def _leading_run(f: np.ndarray) -> np.ndarray:
+    """``f`` up to its first zero after the first non-zero force. A stall right after the rejoin
+    (the new process's forces reaching the plant late: 8 of 31 local rejoins, 12-72 stale
+    samples in the first 100 ms) zeroes the force while the fade runs on by the stamps, so the
+    force resumes at the gain the fade has reached by then; that is the watchdog answering a
+    stall, as later in the run, not the rejoin kicking (CI attempts failed so: first 50 ms at
+    0.31-0.37 x the RMS at 0.5 s)."""
+    nz = np.flatnonzero(f != 0.0)
+    if not len(nz):
+        return f
+    gap = np.flatnonzero(f[nz[0]:] == 0.0)
+    return f[:nz[0] + gap[0]] if len(gap) else f
+
+
 def _max_step(k: np.ndarray, f: np.ndarray) -> float:
     """Largest change between consecutive samples (gaps, e.g. overruns, skipped), leaving out
     a step into or out of a stale zero after the first force: the plant zeroing a force that
@@ -119,23 +133,22 @@ def test_killed_controller_is_zeroed_then_rejoins_without_kick(victim, ctx, cfg,
         if sharer is None:
             first = int(np.flatnonzero(f_re != 0.0)[0])
             k_re, f_re = k_re[max(first - 1, 0):], f_re[max(first - 1, 0):]
-        # the force after it rejoined, against itself 0.45-0.55 s later (fade nearly done):
-        # self-normalised, so a state the fault left excited does not count as a kick
+        # the force after it rejoined against itself once faded in (0.5-1 s; non-zero samples:
+        # a stall of the shared box past the 10 ms input timeout zeroes the force for a while,
+        # the watchdog doing its job): self-normalised, so a state the fault left excited does
+        # not count as a kick. The reference spans a second, not 0.45-0.55 s: the force is a
+        # 0.5-3.5 Hz signal, and over 100 ms its RMS is one draw of its phase (31 local rejoins
+        # of fb_stage2: first 50 ms at 0-0.197 x that, 0-0.108 x the 0.5-1 s RMS; 8 more of
+        # each victim: 0-0.194)
         age = k_re - k_re[0]
-        head = f_re[age < 0.05 * rate]
-        # the reference level once faded in, from applied (non-zero) samples: a scheduling
-        # stall of the shared box past the 10 ms input timeout zeroes the force for a while
-        # (the watchdog doing its job), which is no measure of the rejoin; widened to 1 s then
-        win = (age >= 0.45 * rate) & (age < 0.55 * rate)
-        stale_zeros = int(np.sum(win & (f_re == 0.0)))
-        late = f_re[win & (f_re != 0.0)]
-        if len(late) <= 20:
-            late = f_re[(age >= 0.45 * rate) & (age < 1.0 * rate) & (f_re != 0.0)]
-        late_rms = float(np.sqrt(np.mean(late**2))) if len(late) else 0.0
-        ramp = float(np.sqrt(np.mean(head**2))) / max(late_rms, 1e-12)
+        ref = f_re[(age >= 0.5 * rate) & (age < 1.0 * rate) & (f_re != 0.0)]
+        stale_zeros = int(np.sum((age >= 0.5 * rate) & (age < 1.0 * rate) & (f_re == 0.0)))
+        ref_rms = float(np.sqrt(np.mean(ref**2))) if len(ref) else 0.0
+        head = _leading_run(f_re[age < 0.05 * rate])
+        ramp = float(np.sqrt(np.mean(head**2))) / max(ref_rms, 1e-12)
         early = age < 0.1 * rate
         rejoin_step = _max_step(k_re[early], f_re[early])  # steps while it fades in
-        late_max = float(np.abs(late).max()) if len(late) else 0.0
+        late_max = float(np.abs(ref).max()) if len(ref) else 0.0
         full = float(np.abs(f_before).max())
     finally:
         codes = graph.stop()
@@ -145,8 +158,8 @@ def test_killed_controller_is_zeroed_then_rejoins_without_kick(victim, ctx, cfg,
            f"zero force after {latency_s * 1e3:.1f} ms; '{degraded_msg}'; restart fades in",
            f"{latency_s * 1e3:.1f} ms to zero force (scheduling delay {load * 1e3:.1f} ms); "
            f"rejoin max step {rejoin_step:.3g} N "
-           f"(|F| {late_max:.3g} N at 0.5 s); first 50 ms at {ramp:.0%} of the RMS at 0.5 s"
-           + (f" ({stale_zeros} stale-zero samples at 0.45-0.55 s)" if stale_zeros else ""),
+           f"(|F| {late_max:.3g} N at 0.5-1 s); first 50 ms at {ramp:.0%} of the RMS at 0.5-1 s"
+           + (f" ({stale_zeros} stale-zero samples at 0.5-1 s)" if stale_zeros else ""),
            latency_s=latency_s, rejoin_step_n=rejoin_step, steady_step_n=steady, max_force_n=full,
            ramp_ratio=ramp, sched_delay_s=load, plant_rate_hz=plant["achieved_rate_hz"],
            overruns=plant["overruns"])
@@ -155,10 +168,11 @@ def test_killed_controller_is_zeroed_then_rejoins_without_kick(victim, ctx, cfg,
     assert all(c == 0 for n, c in codes.items() if n != victim), codes
     assert_clean(graph.logs())
     # no kick: the force ramps (fade-in over control.fade_time_s = 0.5 s: its first 50 ms carry
-    # ~10 % of the RMS at 0.5 s; a full-gain restart ~100 %) and no step in its first 100 ms
-    # reaches 30 % of the force it has at 0.5 s (a kick is a step of the whole force)
-    assert len(late) > 20, (f"{victim} rejoin: only {len(late)} non-zero applied-force "
-                            "samples 0.45-1 s after it rejoined")
+    # ~6 % of the RMS once faded in, a full-gain restart ~60 %, median of the 31 rejoins
+    # above) and no step in its first 100 ms reaches 30 % of the force it has at 0.5-1 s (a
+    # kick is a step of the whole force)
+    assert len(ref) > 200, (f"{victim} rejoin: only {len(ref)} non-zero applied-force "
+                            "samples 0.5-1 s after it rejoined")
     assert ramp <= 0.3 and rejoin_step <= 0.3 * late_max, (
-        f"{victim} rejoin kicked: first 50 ms at {ramp:.3g} x the RMS at 0.5 s (bound 0.3), "
-        f"max step {rejoin_step:.3g} N vs |F| {late_max:.3g} N at 0.5 s")
+        f"{victim} rejoin kicked: first 50 ms at {ramp:.3g} x the RMS at 0.5-1 s (bound 0.3), "
+        f"max step {rejoin_step:.3g} N vs |F| {late_max:.3g} N at 0.5-1 s")
