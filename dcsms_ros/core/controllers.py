@@ -118,6 +118,12 @@ class Allocator:
                                   np.array(st.actuators.direction), np.array(st.com))
             self.limit = float(cfg.actuators.force_limit_n)
         self.pinv: Array = np.asarray(np.linalg.pinv(self.b), dtype=np.float64)
+        # |forces_i| <= max_i sum_j |pinv_ij| * max_j |wrench_j|: a wrench no larger than this
+        # in every component puts no actuator at its limit (margin for the rounding of the
+        # product), so the allocation need not be computed to know that
+        gain = float(np.abs(self.pinv).sum(axis=1).max()) if self.pinv.size else 0.0
+        #: Largest wrench component (N, N*m) that cannot saturate an actuator.
+        self.safe_wrench = self.limit / gain * (1.0 - 1e-9) if gain > 0.0 else math.inf
 
     @property
     def n_act(self) -> int:
@@ -239,8 +245,8 @@ class _Loop:
             wl[a] = -fade * ya
         w = np.array(wl)
         self.last_saturated = 0
-        if fade == 0.0:
-            return w
+        if fade == 0.0 or max(map(abs, wl)) <= self.allocator.safe_wrench:
+            return w  # the usual sample: no actuator near its limit (1.7 us saved a sample)
         clipped, n_sat = self.allocator.clip(self.allocator.forces(w))
         if n_sat == 0:
             return w

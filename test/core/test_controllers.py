@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import math
 import pickle
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +25,7 @@ from dcsms_ros.core.filters import feedback_tf, feedforward_tf
 from dcsms_ros.errors import ConfigError
 
 FS = 2000.0
+TEM = Path(__file__).resolve().parents[2] / "config" / "tem_paper_fit.yaml"
 
 
 def cresp(tf, f_hz):
@@ -79,6 +81,26 @@ def test_allocator_1dof_lumped_limit():
     al = Allocator(load_config(), 2)
     assert al.n_act == 1 and al.limit == 400.0
     assert_allclose(al.forces([5.0]), [5.0])
+
+
+@pytest.mark.parametrize("make", [lambda: Allocator(sixdof_config(), 1),
+                                  lambda: Allocator(sixdof_config(), 2),
+                                  lambda: Allocator(load_config(), 1),
+                                  lambda: Allocator(load_config(TEM), 2)])
+def test_a_wrench_within_the_safe_bound_saturates_no_actuator(make):
+    """``safe_wrench`` (the loops skip the allocation below it) is a true bound: 10,000 random
+    wrenches no larger in any component never saturate, and it is tight: the worst wrench at
+    the bound drives one actuator to its limit (within 1e-6), 0.1 % more saturates it."""
+    al = make()
+    rng = np.random.default_rng(7)
+    dof = al.b.shape[0]
+    for w in rng.uniform(-1.0, 1.0, (10_000, dof)) * al.safe_wrench:
+        assert al.clip(al.forces(w))[1] == 0
+    i = int(np.argmax(np.abs(al.pinv).sum(axis=1)))
+    worst = np.sign(al.pinv[i]) * al.safe_wrench  # every component adds to actuator i
+    assert al.clip(al.forces(worst))[1] == 0
+    assert abs(al.forces(worst)[i]) == pytest.approx(al.limit, rel=1e-6)
+    assert al.clip(al.forces(worst * 1.001))[1] >= 1
 
 
 @pytest.mark.parametrize("f0", [2.0, 5.0, 20.0, 60.0])
