@@ -5,7 +5,9 @@ executor on both sides), the same ping-pong with the echo on rclpy's ``EventsExe
 both sides on the hot path (``dcsms_ros/ros/hotpath.py``), then the six-process graph
 (plant, decoupling, fb_stage1, fb_stage2, ff_stage1, mode_switch; table1, DFBC+FFC) in lockstep
 with the hot path on and off (``DCSMS_HOT_PATH=0``: every subscription on the default
-executor), then in real time at ``plant.rate_hz`` for ``--rt-seconds``.
+executor), then in real time at ``plant.rate_hz`` for ``--rt-seconds``; the composed graph
+beside it; last the user's per-process real-time command and the CPU per node and sample
+(``per_process_bench.py``).
 
 Each graph run and its timings come from ``graph_run.py``: lockstep rate, real-time period
 percentiles, deadline misses (period > 1.5 T) and sensor-to-force latency from the plant's
@@ -31,6 +33,7 @@ sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
 from graph_run import CONFIG, env, lockstep_rate, p50_us, realtime_stats, run_graph
+from per_process_bench import per_process_rows
 
 Row = dict[str, Any]
 
@@ -116,16 +119,10 @@ def run(smoke: bool, tmp: Path, rt_seconds: float | None = None) -> list[Row]:
         fifo[0].pop("target_ratio")
         rows += fifo
     rows += composed_rows(smoke, tmp, base, rt_s)
-    rows += cpu_rows(smoke, tmp, base, min(rt_s, 20.0))
+    rows += per_process_rows(smoke, tmp, base, min(rt_s, 20.0))
     return rows
 
 
-#: Why a CPU-per-sample row misses its target (docs/performance.md, "CPU per sample, one process
-#: per node": the perf profile).
-CPU_WHY = ("NOT met: per input message ~40-50 us go to Fast DDS's receive thread (measured over "
-           "shared memory; UDP since 2026-11-26 costs the plant 1.1x, the decoupling 1.2x) and the "
-           "SCHED_FIFO wake-up with its mutex hand-off before any Python runs (perf, "
-           "docs/performance.md); the Python per sample is 16 us warm")
 #: Why the composed real-time row misses its target where it does (docs/performance.md,
 #: "Where the composed late samples come from").
 COMPOSED_LATE_WHY = ("; NOT met where the driver thread needs ~70-75 % of a core at 2 kHz: "
@@ -136,47 +133,6 @@ COMPOSED_LATE_WHY = ("; NOT met where the driver thread needs ~70-75 % of a core
 MISS_WHY = ("the jitter of the plant's publication period; a late period is caught up within "
             "20 samples, so it is not a late sample (issue 21 counts late + stale: "
             "docs/performance.md)")
-
-#: CPU per sample (us) each node of the per-process graph may spend, recorder per message.
-CPU_TARGETS_US = {"plant_simulator": 100.0, "sensor_decoupling": 60.0, "fb_stage1": 40.0,
-                  "fb_stage2": 40.0, "ff_stage1": 40.0, "recorder": 15.0}
-
-
-def cpu_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
-    """CPU (us) per sample of each process of the real-time graph, ``--rt-priority 50``,
-    recording off and on as ``dcsms up --realtime --record`` records (the per-sample topics in
-    the node processes); the recording's per message written: what recording adds to the
-    whole graph's CPU (every process, the recorder process included), per message."""
-    runs = {rec: run_graph("realtime", rt_s, base + 10 + bool(rec), tmp,
-                           timeout_s=rt_s * 3 + 120, rt_priority=0 if smoke else 50,
-                           record=rec)
-            for rec in (None, "parts")}
-    off_cpu, on_cpu = runs[None]["cpu"], runs["parts"]["cpu"]
-    rows: list[Row] = []
-    for name, target in CPU_TARGETS_US.items():
-        off, on = off_cpu.get(name), on_cpu.get(name)
-        if on is None:
-            continue
-        if name == "recorder":
-            written = sum((runs["parts"]["recorded"] or {}).values())
-            added = sum(on_cpu.values()) - sum(off_cpu.get(n, 0.0) for n in on_cpu)
-            value = added * rt_s / max(written, 1) * 1e6
-            note = (f"{written} messages in {rt_s:g} s; recording adds {100 * added:.0f} % of "
-                    f"a core to the graph (the recorder process {100 * on:.0f} %)")
-            base_v = base_name = None
-        else:
-            rate = runs["parts"]["rate_hz"]
-            value = on / rate * 1e6
-            base_v = off / rate * 1e6 if off is not None else None
-            base_name = "recording off"
-            note = f"{100 * on:.0f} % of a core at {rate:g} Hz"
-        if value > target:
-            note += f"; {CPU_WHY}"
-        rows.append({"name": f"graph: CPU per sample, per process, recording on, {name}",
-                     "value": value, "unit": "us", "baseline_name": base_name,
-                     "baseline": base_v, "target_max": target, "note": note})
-    return rows
-
 
 def _recorded(r: dict[str, Any], samples: int) -> str:
     """What the recorder got of the stream topics (lockstep: every sample, nothing lost)."""
@@ -224,16 +180,7 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
                  "note": f"{rates['composed+rec'] / 2000:.2f}x real time at 2 kHz; step p50 "
                          f"{p50_us(runs['composed+rec']):.0f} us; "
                          f"{_recorded(runs['composed+rec'], n)}; CPU {cpu['composed+rec']}"
-                         + ("" if rates["composed+rec"] >= 5000.0 else
-                            "; below 5,000: one Python driver thread per step (recorder 27 %, "
-                            "plant 29 %, controllers 21 %, bus 11 % of it: performance.md, "
-                            "in-process delivery), and its preemptions on a shared machine")
-                         + ("" if rates["composed+rec"] >= 5.0 * rates["process"] else
-                            "; below 5x the 6 processes: the step is one Python thread doing "
-                            "every node's work, spread thin (py-spy --gil: plant 41 % with its "
-                            "stepping, controllers 23 %, decoupling 13 %, recorder 11 %, the bus "
-                            "7 %, checkpoints 5 %; no source line above 3 %), so no single cut "
-                            "gains the 5 % missing (performance.md, the composed lockstep step)")})
+                         + _lockstep_why(rates["composed+rec"], rates["process"])})
     rows.append({"name": "graph: lockstep DFBC+FFC, composed, recorder process",
                  "value": rates["composed"], "unit": "steps/s",
                  "baseline_name": "recorder in the process", "baseline": rates["composed+rec"],
@@ -273,6 +220,22 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
     rows += rt
     rows.append(_demo_row(smoke, tmp))
     return rows
+
+
+def _lockstep_why(composed: float, process: float) -> str:
+    """Why the composed lockstep row misses its targets (nothing when it meets them)."""
+    why = []
+    if composed < 5000.0:
+        why.append("below 5,000 steps/s (2.5x real time)")
+    if composed < 5.0 * process:
+        why.append(f"below 5x the 6 processes ({5.0 * process / composed - 1:.0%} missing)")
+    if not why:
+        return ""
+    return (f"; NOT met, {' and '.join(why)}: the step is one Python thread doing every node's "
+            "work, spread thin (py-spy --gil: plant 41 % with its stepping, controllers 23 %, "
+            "decoupling 13 %, recorder 11 %, the bus 7 %, checkpoints 5 %; no source line above "
+            "3 %), and it is preempted on a shared machine (performance.md, the composed "
+            "lockstep step)")
 
 
 def _floor_row(smoke: bool, work_us: float, rt_s: float) -> Row:

@@ -1,0 +1,150 @@
+"""One process per node in real time: issue 21's per-process targets from the user's own
+command (`dcsms up --realtime --rt-priority 50 --record OUT`: the runs that end by themselves,
+the late and stale samples of its summary), and the CPU each node spends per sample, recording
+off and on (``graph_run.py``, which reads every process's CPU; table1, DFBC+FFC; the per-sample
+topics recorded in the node processes and the rest by a recorder process, as
+``dcsms up --record`` does).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from graph_run import env, run_graph
+
+Row = dict[str, Any]
+
+#: Runs of the user's per-process command per `make bench` (issue 21 asks 20 of 20 to end by
+#: themselves: docs/performance.md has the 20-run series; three keep the bench's time).
+USER_RUNS = 3
+#: Late + stale samples a per-process run may have (issue 21).
+LATE_MAX = 0.01
+
+#: Why a CPU-per-sample row misses its target (docs/performance.md, "CPU per sample, one process
+#: per node": the perf profile).
+CPU_WHY = ("NOT met: per input message ~40-50 us go to Fast DDS's receive thread (measured over "
+           "shared memory; UDP since 2026-11-26 costs the plant 1.1x, the decoupling 1.2x) and the "
+           "SCHED_FIFO wake-up with its mutex hand-off before any Python runs (perf, "
+           "docs/performance.md); the Python per sample is 16 us warm")
+#: CPU per sample (us) each node of the per-process graph may spend, recorder per message.
+CPU_TARGETS_US = {"plant_simulator": 100.0, "sensor_decoupling": 60.0, "fb_stage1": 40.0,
+                  "fb_stage2": 40.0, "ff_stage1": 40.0, "recorder": 15.0}
+
+
+def _busy() -> tuple[int, int]:
+    """The machine's (busy, total) CPU ticks since boot (``/proc/stat``)."""
+    f = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    idle = f[3] + (f[4] if len(f) > 4 else 0)
+    return sum(f) - idle, sum(f)
+
+
+def user_run(seconds: float, domain: int, tmp: Path, rt_priority: int) -> dict[str, Any]:
+    """`dcsms up --realtime --rt-priority P --mode DFBC+FFC --duration S --record OUT` (table1),
+    as a user runs it: ``rc`` (None: it did not end by itself within the timeout and was
+    killed), its ``summary.json`` (None if it wrote none) and ``busy``, the share of the
+    machine's CPU that was busy meanwhile."""
+    run = Path(tempfile.mkdtemp(prefix="up-rt-", dir=tmp))
+    argv = [sys.executable, "-m", "dcsms_ros.cli", "up", "--realtime", "--mode", "DFBC+FFC",
+            "--duration", f"{seconds:g}", "--record", str(run / "bag"), "--log-dir",
+            str(run / "log")]
+    if rt_priority:
+        argv[5:5] = ["--rt-priority", str(rt_priority)]
+    b0 = _busy()
+    with env(ROS_DOMAIN_ID=str(domain)), open(run / "out.txt", "wb") as out:
+        proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+        try:
+            rc: int | None = proc.wait(timeout=seconds * 3 + 120)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+            rc = None
+    b1 = _busy()
+    path = run / "log" / "summary.json"
+    summary = json.loads(path.read_text()) if path.exists() else None
+    shutil.rmtree(run / "bag", ignore_errors=True)
+    return {"rc": rc, "summary": summary,
+            "busy": (b1[0] - b0[0]) / max(b1[1] - b0[1], 1)}
+
+
+def late_per_sample(summary: dict[str, Any]) -> float:
+    """Late deadlines per deadline plus stale forces per force (a run's ``summary.json``)."""
+    return float(summary["late_fraction"]) + summary["stale"] / max(summary["forces"], 1)
+
+
+def per_process_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
+    """Issue 21's per-process rows (:data:`USER_RUNS` runs of the user's command), then the CPU
+    rows (:func:`cpu_rows`)."""
+    prio = 0 if smoke else 50
+    runs = [user_run(rt_s, base + 11 + i, tmp, prio) for i in range(1 if smoke else USER_RUNS)]
+    ended = [r for r in runs if r["rc"] == 0 and r["summary"] is not None]
+    label = f"graph: `dcsms up --realtime --rt-priority {prio} --duration {rt_s:g} --record`"
+    fails = "; ".join(f"exit {r['rc']}" if r["rc"] is not None else "killed after the timeout"
+                      for r in runs if r not in ended)
+    rows: list[Row] = [
+        {"name": f"{label}, one process per node: runs that ended by themselves",
+         "value": len(ended), "unit": f"of {len(runs)}", "target": float(len(runs)),
+         "note": fails or "every run finished and exited 0"},
+    ]
+    if ended:
+        lates = [late_per_sample(r["summary"]) for r in ended]
+        each = ", ".join(f"late {r['summary']['late']} stale {r['summary']['stale']} ({v:.4f})"
+                         for r, v in zip(ended, lates, strict=True))
+        busy = " / ".join(f"{100 * r['busy']:.0f}" for r in ended)
+        note = (f"the worst of {len(ended)} runs; each: {each}; the machine's {os.cpu_count()} "
+                f"cores were {busy} % busy")
+        if max(lates) > LATE_MAX:
+            note += ("; NOT met where the processes need the whole machine: each one's CPU per "
+                     "sample is bound by the transport (the CPU rows below); the composed graph "
+                     "hands the same samples over in process (docs/performance.md)")
+        rows.append({"name": f"{label}, one process per node: late + stale per sample "
+                             "(issue 21)", "value": max(lates), "unit": "",
+                     "target_max": LATE_MAX, "note": note})
+    return rows + cpu_rows(smoke, tmp, base, rt_s)
+
+
+def cpu_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
+    """CPU (us) per sample of each process of the real-time graph, ``--rt-priority 50``,
+    recording off and on as ``dcsms up --realtime --record`` records (the per-sample topics in
+    the node processes); the recording's per message written: what recording adds to the
+    whole graph's CPU (every process, the recorder process included), per message."""
+    off_run, on_run = (run_graph("realtime", rt_s, base + 10 + bool(rec), tmp,
+                                 timeout_s=rt_s * 3 + 120, rt_priority=0 if smoke else 50,
+                                 record=rec)
+                       for rec in (None, "parts"))
+    off_cpu, on_cpu = off_run["cpu"], on_run["cpu"]
+    rows: list[Row] = []
+    for name, target in CPU_TARGETS_US.items():
+        off, on = off_cpu.get(name), on_cpu.get(name)
+        if on is None:
+            continue
+        if name == "recorder":
+            written = sum((on_run["recorded"] or {}).values())
+            added = sum(on_cpu.values()) - sum(off_cpu.get(n, 0.0) for n in on_cpu)
+            value = added * rt_s / max(written, 1) * 1e6
+            note = (f"{written} messages in {rt_s:g} s; recording adds {100 * added:.0f} % of "
+                    f"a core to the graph (the recorder process {100 * on:.0f} %)")
+            base_v = base_name = None
+        else:
+            rate = on_run["rate_hz"]
+            value = on / rate * 1e6
+            base_v = off / rate * 1e6 if off is not None else None
+            base_name = "recording off"
+            note = f"{100 * on:.0f} % of a core at {rate:g} Hz"
+        if value > target:
+            note += f"; {CPU_WHY}"
+        rows.append({"name": f"graph: CPU per sample, per process, recording on, {name}",
+                     "value": value, "unit": "us", "baseline_name": base_name,
+                     "baseline": base_v, "target_max": target, "note": note})
+    return rows
+
+
+__all__ = ["CPU_TARGETS_US", "late_per_sample", "per_process_rows", "user_run"]
