@@ -1,10 +1,12 @@
 """scipy.signal's compiled ``sosfilt`` as a :data:`.sosfilter.BlockFilter`, for the batch
-engine.
+engine's object path and where numba is not installed.
 
 The nodes filter blocks with :func:`.sosfilter.sosfilt` (Python floats, no scipy.signal to
 import at start-up); the engine filters the trip's, the checkpoints' and the disturbances'
-blocks 10-20x faster with scipy's C loop. Both run the same operations in the same order, so
-a graph and the batch engine still agree bit for bit (``test/core/test_filterdesign.py``).
+blocks 10-20x faster with scipy's C loop, or, on its fast path, with the numba loop of
+:func:`.fastsim.sosfilt` (scipy validates its arguments for ~80 us a call, longer than a 50 ms
+block of a few channels takes to filter). All run the same operations in the same order, so a
+graph and the batch engine still agree bit for bit (``test/core/test_filterdesign.py``).
 """
 
 from __future__ import annotations

@@ -115,13 +115,16 @@ class Simulation:
         if supervisor is None and cfg.supervisor.enabled:
             supervisor = make_supervisor(cfg, mode, allow_unstable)
         self.supervisor = supervisor if trip else None
-        self._feed = (CheckpointFeed(cfg, compiledsos.sosfilt) if self.supervisor is not None
-                      else None)
+        # the same numbers from either filter; the compiled one where numba is, unless the
+        # object path was asked for
+        block = (fastsim.sosfilt if fast is not False and fastsim.available()
+                 else compiledsos.sosfilt)
+        self._feed = CheckpointFeed(cfg, block) if self.supervisor is not None else None
         n = cfg.plant.num_stages
         if plant is not None:
             check_plant(cfg, plant)
         self.sim = PlantSimulator(plant or cfg, seed=seed, ground=ground, table=table,
-                                  block_filter=compiledsos.sosfilt)
+                                  block_filter=block)
         self.excite = _excite_array(cfg, excite)
         self._exc_offset = 0  # sample of the first row of self.excite
         self._exc_stop: int | None = None  # first sample without excitation (a trip)
@@ -137,7 +140,7 @@ class Simulation:
         self.modes: list[tuple[int, str]] = [(0, mode.label)]
         self.refused: list[tuple[int, str]] = []
         self.checker = (TripChecker(cfg.control, cfg.plant.rate_hz, n, cfg.plant.dof,
-                                    compiledsos.sosfilt) if trip else None)
+                                    block) if trip else None)
         self.trip: Trip | None = None
         self.k = 0
         if fast is None:

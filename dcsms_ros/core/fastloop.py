@@ -55,6 +55,26 @@ def _finite(v):  # type: ignore[no-untyped-def]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def sosfilt_block(s, x, zf, y):  # type: ignore[no-untyped-def]
+    """:func:`.sosfilter.sosfilt` into ``y`` (K, channels): sections ``s`` (n, 6) over ``x``
+    (K, channels), states ``zf`` (n, 2, channels) advanced in place; the same expressions in
+    the same order."""
+    for c in range(x.shape[1]):
+        for k in range(x.shape[0]):
+            y[k, c] = x[k, c]
+        for i in range(s.shape[0]):
+            b0, b1, b2, a1, a2 = s[i, 0], s[i, 1], s[i, 2], s[i, 4], s[i, 5]
+            z0, z1 = zf[i, 0, c], zf[i, 1, c]
+            for k in range(x.shape[0]):
+                v = y[k, c]
+                w = b0 * v + z0
+                z0 = b1 * v - a1 * w + z1
+                z1 = b2 * v - a2 * w
+                y[k, c] = w
+            zf[i, 0, c], zf[i, 1, c] = z0, z1
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, noise, excite,  # type: ignore[no-untyped-def]
               out):
     """Run samples ``k0 <= k < k1``; returns ``k1``, or the first sample with a non-finite

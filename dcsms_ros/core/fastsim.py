@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from dcsms_ros.core.decoupling import Decoupler
 from dcsms_ros.core.modes import ControllerId
@@ -34,6 +34,24 @@ BLOCK = 1 << 16
 def available() -> bool:
     """True when numba can be imported (the fast path is optional: the nodes never need it)."""
     return importlib.util.find_spec("numba") is not None
+
+
+def sosfilt(sos: ArrayLike, x: ArrayLike, zi: ArrayLike) -> tuple[Array, Array]:
+    """:func:`.sosfilter.sosfilt` (same arguments, same numbers) in numba-compiled code, the
+    batch engine's block filter when numba is there (:func:`available`): the engine filters
+    the disturbances', the trip's and the checkpoints' 50 ms blocks, ~6,000 calls per simulated
+    minute of table1, where ``scipy.signal.sosfilt`` spends ~80 us a call validating its
+    arguments before its C loop runs."""
+    from dcsms_ros.core.fastloop import sosfilt_block  # noqa: PLC0415 - optional: numba
+
+    s = np.ascontiguousarray(sos, dtype=np.float64).reshape(-1, 6)
+    if np.any(s[:, 3] != 1.0):
+        raise ValueError("sosfilt: a0 of every section must be 1")
+    xs = np.ascontiguousarray(x, dtype=np.float64)
+    zf = np.array(zi, dtype=np.float64, copy=True, order="C")
+    y = np.empty_like(xs)
+    sosfilt_block(s, xs, zf, y)
+    return y, zf
 
 
 def _c(a: Any, dtype: Any = np.float64) -> Any:
@@ -166,4 +184,4 @@ class FastLoop:
         self.sim.saturations = int(self.counters[1])
 
 
-__all__ = ["BLOCK", "FastLoop", "Inputs", "available"]
+__all__ = ["BLOCK", "FastLoop", "Inputs", "available", "sosfilt"]

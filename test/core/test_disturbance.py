@@ -8,7 +8,7 @@ from numpy.testing import assert_allclose
 from scipy import signal
 from sixdof_helper import sixdof_config
 
-from dcsms_ros.core import compiledsos
+from dcsms_ros.core import compiledsos, fastsim
 from dcsms_ros.core.config import load_config
 from dcsms_ros.core.disturbance import (
     BLOCK,
@@ -73,7 +73,9 @@ def _whole_blocks(rms, band, channels, seed, n):
     return np.vstack(out)[:n]
 
 
-@pytest.mark.parametrize("run", [sosfilt, compiledsos.sosfilt], ids=["python", "compiled"])
+@pytest.mark.parametrize("run", [sosfilt, compiledsos.sosfilt, pytest.param(
+    fastsim.sosfilt, marks=pytest.mark.skipif(not fastsim.available(), reason="no numba"))],
+    ids=["python", "scipy", "numba"])
 def test_band_noise_split_keeps_the_bits(run):
     """Served row by row (the nodes), in odd blocks, or whole (the engine), with the Python
     or the compiled block filter: the same bits as whole blocks filtered by scipy."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import warnings
 from pathlib import Path
+from typing import Any
 
 import control as ct  # type: ignore[import-untyped]
 import numpy as np
@@ -13,6 +14,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy import signal
 
+from dcsms_ros.core import fastsim
 from dcsms_ros.core import filterdesign as fd
 from dcsms_ros.core.config import SystemConfig, load_config
 from dcsms_ros.core.controllers import suspension_totals
@@ -186,15 +188,21 @@ def test_tf_to_zpk_and_bilinear_equal_scipy(num, den, fs) -> None:
     assert_allclose(got[2], ref[2], rtol=RTOL)
 
 
+NUMBA = pytest.mark.skipif(not fastsim.available(), reason="numba is not installed")
+
+
+@pytest.mark.parametrize("filt", [sosfilt, pytest.param(fastsim.sosfilt, marks=NUMBA)],
+                         ids=["python", "numba"])
 @pytest.mark.parametrize("shape", [(100, 1), (100, 6), (1500, 3)])
-def test_sosfilt_is_scipys_bit_for_bit(shape: tuple[int, int]) -> None:
-    """Same operations in the same order: identical numbers, state carried across blocks."""
+def test_sosfilt_is_scipys_bit_for_bit(shape: tuple[int, int], filt: Any) -> None:
+    """Same operations in the same order: identical numbers, state carried across blocks
+    (the nodes' Python floats, the batch engine's compiled loop)."""
     sos = fd.butter_sos(2, (1.0, 200.0), "bandpass", 2000.0)
     x = np.random.default_rng(5).standard_normal(shape)
     zi = fd.sos_steady_state(sos)[:, :, None] * x[0][None, None, :]
     ref, zref = signal.sosfilt(sos, x, axis=0, zi=zi)
-    y1, z1 = sosfilt(sos, x[:37], zi)
-    y2, z2 = sosfilt(sos, x[37:], z1)
+    y1, z1 = filt(sos, x[:37], zi)
+    y2, z2 = filt(sos, x[37:], z1)
     assert_array_equal(np.vstack([y1, y2]), ref)
     assert_array_equal(z2, zref)
 
