@@ -52,11 +52,10 @@ def user_run(seconds: float, domain: int, tmp: Path, rt_priority: int) -> dict[s
     killed), its ``summary.json`` (None if it wrote none) and ``busy``, the share of the
     machine's CPU that was busy meanwhile."""
     run = Path(tempfile.mkdtemp(prefix="up-rt-", dir=tmp))
-    argv = [sys.executable, "-m", "dcsms_ros.cli", "up", "--realtime", "--mode", "DFBC+FFC",
+    argv = [sys.executable, "-m", "dcsms_ros.cli", "up", "--realtime",
+            *(["--rt-priority", str(rt_priority)] if rt_priority else []), "--mode", "DFBC+FFC",
             "--duration", f"{seconds:g}", "--record", str(run / "bag"), "--log-dir",
             str(run / "log")]
-    if rt_priority:
-        argv[5:5] = ["--rt-priority", str(rt_priority)]
     b0 = _busy()
     with env(ROS_DOMAIN_ID=str(domain)), open(run / "out.txt", "wb") as out:
         proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT,
