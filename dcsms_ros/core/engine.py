@@ -115,10 +115,11 @@ class Simulation:
         if supervisor is None and cfg.supervisor.enabled:
             supervisor = make_supervisor(cfg, mode, allow_unstable)
         self.supervisor = supervisor if trip else None
-        # the same numbers from either filter; the compiled one where numba is, unless the
-        # object path was asked for
-        block = (fastsim.sosfilt if fast is not False and fastsim.available()
-                 else compiledsos.sosfilt)
+        if fast is None:
+            fast = fastsim.available()
+        self.fast = bool(fast and fastsim.available() and not any((delay or {}).values()))
+        # the same numbers from either filter: the fast path's compiled one, or scipy's
+        block = fastsim.sosfilt if self.fast else compiledsos.sosfilt
         self._feed = CheckpointFeed(cfg, block) if self.supervisor is not None else None
         n = cfg.plant.num_stages
         if plant is not None:
@@ -143,9 +144,6 @@ class Simulation:
                                     block) if trip else None)
         self.trip: Trip | None = None
         self.k = 0
-        if fast is None:
-            fast = fastsim.available()
-        self.fast = bool(fast and fastsim.available() and not any((delay or {}).values()))
         self._loop = (fastsim.FastLoop(self.sim, self.dec, self.ctrls, self.body)
                       if self.fast else None)
 
