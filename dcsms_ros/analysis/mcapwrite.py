@@ -191,8 +191,11 @@ class McapBagWriter:
         single.append(size)
         ch.data += MESSAGE.pack(0x05, 22 + len(data), t.channel, 0, t_ns, t_ns)
         ch.data += data
-        ch.t0 = min(ch.t0, t_ns)
-        ch.t1 = max(ch.t1, t_ns)
+        # comparisons, not min()/max() calls: ~0.1 us of the ~1.7 us a message costs
+        if t_ns < ch.t0:  # noqa: PLR1730
+            ch.t0 = t_ns
+        if t_ns > ch.t1:  # noqa: PLR1730
+            ch.t1 = t_ns
         t.count += 1
 
     def rows_template(self, topics: Sequence[str],

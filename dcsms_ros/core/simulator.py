@@ -62,7 +62,7 @@ def check_plant(cfg: SystemConfig, plant: SystemConfig) -> None:
 def finite(v: ArrayLike) -> bool:
     """Whether every element of ``v`` is finite; for the few floats of a wrench per sample a
     Python loop (~0.3 us) instead of ``np.all(np.isfinite(v))`` (~2.7 us)."""
-    return all(map(math.isfinite, np.ravel(v).tolist()))
+    return all(map(math.isfinite, np.asarray(v).ravel().tolist()))
 
 
 class PlantSimulator:
@@ -117,6 +117,7 @@ class PlantSimulator:
         self._u = np.zeros(n_in)
         self._truth = np.zeros((cfg.plant.num_stages + 1, self.dof))
         self._raw: Array | None = None
+        self._rows: dict[str, int] = {}  # controller id -> its stage's row of the totals
         self._draw()
 
     @property
@@ -162,6 +163,12 @@ class PlantSimulator:
             self._raw = self.geophones.step(true_ch)
         return self._raw
 
+    def _row_of(self, cid: str) -> int:
+        row = self._rows.get(cid)
+        if row is None:
+            row = self._rows[cid] = ControllerId.parse(cid).stage - 1
+        return row
+
     def advance(self, wrenches: Mapping[str, Array], excitation: Array | None = None) -> Array:
         """Apply the controllers' wrenches for sample k and step to k+1.
 
@@ -182,12 +189,21 @@ class PlantSimulator:
         """
         if self._raw is None:
             self.measure()  # the geophones sample every step even if nobody asked
-        totals = np.zeros((self.cfg.plant.num_stages, self.dof))
+        # Python floats, added in the same order as the batch engine's loop (the same bits):
+        # a numpy row update per controller cost ~1.5 us on the composed graph's step
+        rows = [[0.0] * self.dof for _ in self.allocators]
         for cid, w in wrenches.items():
-            if not finite(w):
+            v = np.asarray(w).ravel().tolist()
+            if not all(map(math.isfinite, v)):
                 self.nonfinite_inputs += 1
                 continue
-            totals[ControllerId.parse(cid).stage - 1] += w
+            if len(v) != self.dof:
+                raise ValueError(f"{cid}: wrench of {len(v)} components, the plant has "
+                                 f"{self.dof} degrees of freedom")
+            row = rows[self._row_of(cid)]
+            for j, x in enumerate(v):
+                row[j] += x
+        totals = np.array(rows)
         if excitation is not None:
             if finite(excitation):
                 totals += excitation

@@ -107,6 +107,7 @@ class PlantIO:
         self._t_pub: list[int] = []  # timing_file: monotonic ns of each sample's publication
         self._lat: dict[str, list[int]] = {c: [] for c in node.controllers}
         self._ring = [0] * RING  # monotonic ns of sample k's publication at k % RING
+        self._timing = bool(opts.timing_file)
         self.latency_hist = LatencyHistogram()
         self._cpu = [0.0, 0.0]
         self._nonfinite_seen = 0
@@ -172,7 +173,7 @@ class PlantIO:
         self.ns = ns
         t_pub = time.monotonic_ns()
         self._ring[k % RING] = t_pub
-        if self.node.opts.timing_file:
+        if self._timing:
             self._t_pub.append(t_pub)
         truth = self.sim.truth().copy()
         raw = self.sim.measure()
@@ -245,7 +246,7 @@ class PlantIO:
         k = round(stamp * self.sim.cfg.plant.rate_hz / 1e9)
         if 0 <= self.sim.k - k < RING:  # older answers: their publication time is gone
             self.latency_hist.add((now_ns - self._ring[k % RING]) * 1e-9)
-        if self.node.opts.timing_file and 0 <= k < len(self._t_pub):
+        if self._timing and 0 <= k < len(self._t_pub):
             self._lat[cid].append(now_ns - self._t_pub[k])
         return now_ns
 

@@ -18,7 +18,7 @@ the bytes to the endpoints of the topic in publication order:
   lockstep run waits for its observers as it waited for a reliable reader).
 
 Every endpoint gets every message once; a topic's DDS publication is the caller's business:
-:meth:`LocalBus.remote` tells it (from the DDS writer's matched-reader count and the number of
+:meth:`BusWriter.remote` tells it (from the DDS writer's matched-reader count and the number of
 this process's own DDS readers, :meth:`LocalBus.add_reader`) whether a reader outside the
 process is matched. Publications from another thread than the dispatching one call ``wake``.
 No ROS here: unit-tested with plain callables (test/protocols/test_localbus.py).
@@ -38,6 +38,37 @@ OBSERVER_BATCH = 64
 #: Messages one :meth:`LocalBus.dispatch` delivers at most, so the driver still sees its stop
 #: request and runs its ticks during an endless lockstep chain.
 DISPATCH_LIMIT = 2000
+
+#: How long (ns) a composed publisher trusts its DDS writer's matched-reader count. A reader
+#: that matched within it misses nothing of a transient-local topic (the held history), and of
+#: a volatile one what a writer that saw the match 1 ms later would not have sent it either.
+MATCH_REFRESH_NS = 1_000_000
+
+
+class MatchCount:
+    """A DDS writer's matched-reader count, asked at most every :data:`MATCH_REFRESH_NS`.
+
+    Parameters
+    ----------
+    ask : callable
+        ``ask()`` -> int, the count (the publisher handle's ``get_subscription_count``).
+    clock : callable
+        ``clock()`` -> int ns (monotonic).
+    """
+
+    def __init__(self, ask: Callable[[], int], clock: Callable[[], int] = time.monotonic_ns
+                 ) -> None:
+        self._ask, self._clock = ask, clock
+        self._n = 0
+        self._due = -1
+
+    def __call__(self) -> int:
+        """The count, at most :data:`MATCH_REFRESH_NS` old."""
+        now = self._clock()
+        if now >= self._due:
+            self._n = int(self._ask())
+            self._due = now + MATCH_REFRESH_NS
+        return self._n
 
 
 @dataclass
@@ -153,6 +184,11 @@ class BusWriter:
         """The topic's fully resolved name."""
         return self.topic.name
 
+    def remote(self, matched: int) -> bool:
+        """True if this writer's DDS writer, matched with ``matched`` readers, has one outside
+        this process (more readers than this process's own)."""
+        return matched > self.topic.readers
+
     def publish(self, data: bytes) -> None:
         """Queue ``data`` (serialized) for every in-process endpoint of the topic."""
         self.seq += 1
@@ -237,14 +273,8 @@ class LocalBus:
         return ep
 
     def add_reader(self, topic: str) -> None:
-        """Count one DDS reader of ``topic`` in this process (see :meth:`remote`)."""
+        """Count one DDS reader of ``topic`` in this process (see :meth:`BusWriter.remote`)."""
         self._topic(topic).readers += 1
-
-    def remote(self, topic: str, matched: int) -> bool:
-        """True if a writer of ``topic`` whose DDS writer matched ``matched`` readers has one
-        outside this process (more readers than this process's own)."""
-        t = self._topics.get(topic)
-        return matched > (t.readers if t is not None else 0)
 
     def published(self, topic: str) -> int:
         """Messages published on ``topic`` in this process."""
@@ -334,5 +364,5 @@ class LocalBus:
         return n
 
 
-__all__ = ["DISPATCH_LIMIT", "OBSERVER_BATCH", "BusWriter", "Endpoint", "HeldHistory", "Inbox",
-           "LocalBus"]
+__all__ = ["DISPATCH_LIMIT", "MATCH_REFRESH_NS", "OBSERVER_BATCH", "BusWriter", "Endpoint",
+           "HeldHistory", "Inbox", "LocalBus", "MatchCount"]

@@ -6,7 +6,7 @@ import threading
 
 import pytest
 
-from dcsms_ros.protocols.localbus import HeldHistory, LocalBus
+from dcsms_ros.protocols.localbus import MATCH_REFRESH_NS, HeldHistory, LocalBus, MatchCount
 
 
 class Ticks:
@@ -119,12 +119,36 @@ def test_remote_counts_only_readers_outside_the_process() -> None:
     """With two DDS readers of this process on a topic, a writer matched to 2 has no remote
     reader, matched to 3 it has; a topic without own readers is remote at 1."""
     bus = LocalBus()
-    bus.advertise("/raw")
+    raw = bus.advertise("/raw")
     bus.add_reader("/raw")
     bus.add_reader("/raw")
-    assert [bus.remote("/raw", m) for m in (0, 1, 2, 3)] == [False, False, False, True]
-    assert bus.remote("/other", 1) and not bus.remote("/other", 0)
+    assert [raw.remote(m) for m in (0, 1, 2, 3)] == [False, False, False, True]
     assert bus.has_publisher("/raw") and not bus.has_publisher("/other")
+    other = bus.advertise("/other")
+    assert other.remote(1) and not other.remote(0)
+
+
+def test_match_count_asks_again_only_after_the_refresh_interval() -> None:
+    """The count is asked at the first call, kept for MATCH_REFRESH_NS, and asked again at the
+    first call after it: a reader matched at t is seen from t + 1 ms at the latest."""
+    now = [5_000]
+    readers = [2]
+    asked = []
+
+    def ask() -> int:
+        asked.append(now[0])
+        return readers[0]
+
+    count = MatchCount(ask, clock=lambda: now[0])
+    assert count() == 2 and asked == [5_000]
+    readers[0] = 3  # a remote reader matches
+    now[0] += MATCH_REFRESH_NS - 1
+    assert count() == 2 and len(asked) == 1
+    now[0] += 1
+    assert count() == 3 and asked == [5_000, 5_000 + MATCH_REFRESH_NS]
+    readers[0] = 2  # ... and leaves
+    now[0] += 2 * MATCH_REFRESH_NS
+    assert count() == 2 and len(asked) == 3
 
 
 def test_publication_from_another_thread_wakes_the_dispatcher() -> None:
