@@ -172,7 +172,8 @@ class McapBagWriter:
             if self._closed:
                 raise BagError(f"{self.path}: written after close")
             self._write(topic, t_ns, data)
-        self._flush_if_due()
+        if self._pending and not self.defer_flush:  # _flush_if_due, without its call
+            self.flush()
 
     def _write(self, topic: str, t_ns: int, data: bytes) -> None:
         # a recorder's per-message path (~1.2 us): one struct pack, two bytearray appends,

@@ -99,8 +99,9 @@ class LockstepBarrier:
         self.got = {}
         self.asked, self._missed = set(), set()
         self.due = self.due_at(k)
-        self._due_last = any(p in self.last for p in self.due)
-        self.waiting = any(p not in self.absent for p in self.due)
+        # set operations, not generators: this runs at every sample
+        self._due_last = not self.last.isdisjoint(self.due)
+        self.waiting = not self.absent.issuperset(self.due)
         self._t_sent = self._t_retx = now
         return self.waiting
 
@@ -116,7 +117,10 @@ class LockstepBarrier:
             return False
         self.got[who] = value
         self.consec[who] = 0
-        if not self.missing():
+        # nothing is missing only once every due participant answered, is absent or missed
+        # it: fewer of those than due participants need no look at each one
+        if (len(self.got) + len(self.absent) + len(self._missed) >= len(self.due)
+                and not self.missing()):
             self.waiting = False
             return True
         return False
