@@ -41,7 +41,7 @@ DISPATCH_LIMIT = 2000
 
 #: How long (ns) a composed publisher trusts its DDS writer's matched-reader count. A reader
 #: that matched within it misses nothing of a transient-local topic (the held history), and of
-#: a volatile one what a writer that saw the match 1 ms later would not have sent it either.
+#: a volatile one at most that millisecond's messages, as if DDS had matched it 1 ms later.
 MATCH_REFRESH_NS = 1_000_000
 
 
