@@ -63,12 +63,6 @@ class _Wrapped:
         """The DDS writer's wait for its reliable readers' acknowledgements."""
         return bool(self.pub.wait_for_all_acked(timeout))
 
-    def wanted(self) -> bool:
-        """True while anyone takes the messages: a matched DDS reader (this process's own
-        included), or an observer in the process (:meth:`DirectPublisher.observe`). A writer
-        of an optional topic (the plant's truth) publishes only then."""
-        return self.get_subscription_count() > 0
-
 
 class BusPublisher(_Wrapped):
     """A per-sample publisher of a composed process (see the module notes).
@@ -102,7 +96,8 @@ class BusPublisher(_Wrapped):
 
     def wanted(self) -> bool:
         """True while a DDS reader (this process's own included) is matched, as
-        :meth:`remote` knows it (the plant asks per sample and stream)."""
+        :meth:`remote` knows it: a writer of an optional topic (the plant's truth) publishes
+        only then (the plant asks per sample and stream)."""
         return self._matched() > 0
 
     def remote(self) -> bool:
