@@ -99,7 +99,7 @@ def _hot_waiter(node: Any) -> tuple[Any, Any]:
     from geometry_msgs.msg import TwistStamped
     from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-    from dcsms_ros.ros.hotpath import DetachedGroup
+    from dcsms_ros.ros.callbackgroups import DetachedGroup
 
     sub = node.create_subscription(TwistStamped, PONG, lambda m: None, 1,
                                    callback_group=DetachedGroup())

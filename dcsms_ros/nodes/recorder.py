@@ -52,11 +52,12 @@ from dcsms_ros.analysis.gaps import PUBLISHED_KEY, Recording, TopicStats, publis
 from dcsms_ros.analysis.mcapwrite import McapBagWriter
 from dcsms_ros.cdr import CLOCK, read_stamp
 from dcsms_ros.errors import BagError, DcsmsError
+from dcsms_ros.ros.callbackgroups import DetachedGroup
 from dcsms_ros.ros.connectivity import has_reader
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
 from dcsms_ros.ros.executor import HostExecutor
 from dcsms_ros.ros.graphnode import GraphNode
-from dcsms_ros.ros.hotpath import DetachedGroup, DrivenContext
+from dcsms_ros.ros.hotpath import DrivenContext
 from dcsms_ros.ros.housekeeping import Housekeeper
 from dcsms_ros.ros.transport import widen_udp_receive_buffers
 

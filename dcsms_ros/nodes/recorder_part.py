@@ -14,7 +14,7 @@ recorder's rule (it takes the bus's bytes) for a process of one node.
 directory) and :data:`~dcsms_ros.graph.RECORD_TOPICS_ENV` (the topics); without them a node
 records nothing, as under ``ros2 run``. Writes run on the hot thread (~1.5 us a message);
 full chunks are compressed and written by the node's executor, outside the hot-path lock
-(:class:`~dcsms_ros.ros.hotpath.UnlockedGroup`: under it, the hot thread waited for each
+(:class:`~dcsms_ros.ros.callbackgroups.UnlockedGroup`: under it, the hot thread waited for each
 chunk and the plant's late samples doubled, docs/performance.md).
 """
 
@@ -33,9 +33,9 @@ from dcsms_ros.analysis.mcapwrite import McapBagWriter
 from dcsms_ros.errors import BagError, DcsmsError
 from dcsms_ros.graph import RECORD_PART_ENV, RECORD_TOPICS_ENV
 from dcsms_ros.nodes.recorder import qos_yaml
+from dcsms_ros.ros.callbackgroups import UnlockedGroup
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import hot_path
-from dcsms_ros.ros.hotpath import UnlockedGroup
 from dcsms_ros.ros.intraprocess import DirectPublisher
 
 #: Period of the part's flush, s. Every executor round holds the GIL in Python while the node's

@@ -29,8 +29,10 @@ from __future__ import annotations
 import contextlib
 import gc
 import os
+import select
 import sys
 import threading
+import time
 import traceback
 from collections.abc import Callable
 from contextlib import ExitStack
@@ -44,6 +46,7 @@ from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.localbus import LocalBus
 from dcsms_ros.ros.cpulatency import CpuLatencyRequest, hold_from_env
+from dcsms_ros.ros.laneinput import DDS, LANES, PROBE_S
 
 #: Wake-up of the hot thread when nothing arrives (s): bounds the reaction to a stop request.
 IDLE_S = 0.1
@@ -63,6 +66,12 @@ GIL_SWITCH_S = 2e-4
 #: better than 200 us (composed, 4 runs). docs/performance.md, "The GIL switch interval on a
 #: shared core".
 SHARED_CORE_GIL_SWITCH_S = 5e-5
+
+
+#: Longest wait (s) on the lanes while a subscription also has a DDS writer without a lane
+#: (its DDS messages are taken after each wake-up; rare: another host's or a tool's writer of
+#: a topic the graph writes too).
+DDS_POLL_S = 0.001
 
 
 def settle_heap() -> None:
@@ -91,6 +100,10 @@ class Served(Protocol):
     def serve(self) -> int: ...
 
     def tick(self) -> float | None: ...
+
+    def lane_fds(self) -> list[int]: ...
+
+    def lane_state(self, now: float) -> str: ...
 
 
 class HotLoop:
@@ -128,6 +141,9 @@ class HotLoop:
         #: The CPU wake-up latency held while the loop runs under SCHED_FIFO (:mod:`.cpulatency`).
         self.cpu_latency: CpuLatencyRequest | None = None
         self._prioritized = threading.Event()
+        #: paths with lanes (one process per node) and the pipe that wakes a wait on them
+        self._lanes: list[Served] = []
+        self._wake_r = self._wake_w = -1
 
     @property
     def native_id(self) -> int | None:
@@ -149,6 +165,9 @@ class HotLoop:
         # only these have anything to take: composed, most paths' topics are all in process,
         # and a pass over every path took each one's lock for nothing
         self._serving = [p for p, subs in resolved if subs]
+        self._lanes = [p for p in self.paths if p.lane_fds()]
+        if self._lanes:
+            self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._guard = GuardCondition(None, None, context=self.context)
         self.context.on_shutdown(self._on_shutdown)
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
@@ -163,11 +182,18 @@ class HotLoop:
         self._event.set()
         if self._guard is not None and self._subs:
             self._guard.trigger()
+        self._wake_lanes()
+
+    def _wake_lanes(self) -> None:
+        if self._wake_w >= 0:
+            with contextlib.suppress(OSError):  # full: a wake-up is pending anyway
+                os.write(self._wake_w, b"w")
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Ask the thread to end and wait for it (idempotent)."""
         self._stop = True
         self._event.set()
+        self._wake_lanes()
         if self._thread is not None:
             if self._guard is not None:
                 with contextlib.suppress(Exception):
@@ -181,10 +207,16 @@ class HotLoop:
         if self.cpu_latency is not None:
             self.cpu_latency.close()
             self.cpu_latency = None
+        for fd in (self._wake_r, self._wake_w):
+            if fd >= 0:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self._wake_r = self._wake_w = -1
 
     def _on_shutdown(self) -> None:
         self._stop = True
         self._event.set()
+        self._wake_lanes()
         if self._guard is not None:
             with contextlib.suppress(Exception):  # the context may be gone already
                 self._guard.trigger()
@@ -264,7 +296,13 @@ class HotLoop:
                     self.wakeups += 1
                     if self._stop:
                         break
+                elif self._lanes and self._wait_lanes(timeout):
+                    self.wakeups += 1
+                    if self._stop:
+                        break
                 elif bus is None or not bus.pending:  # else go on delivering at once
+                    if self._lanes:  # no lane writer yet: look for one's hello again soon
+                        timeout = min(timeout, PROBE_S)
                     ws.clear_entities()
                     for h in handles:
                         ws.add_subscription(h)
@@ -293,6 +331,23 @@ class HotLoop:
                     nxt = p.tick()
                     if nxt is not None:
                         timeout = min(timeout, max(nxt, 0.0))
+
+
+    def _wait_lanes(self, timeout: float) -> bool:
+        """Wait on the paths' lanes (and the wake-up pipe) for at most ``timeout`` s, if a lane
+        writer serves them; False (no wait) when none does: the loop waits on DDS then."""
+        now = time.monotonic()
+        states = {p.lane_state(now) for p in self._lanes}
+        if states == {DDS} or (len(self._lanes) < len(self._serving)):
+            return False
+        if states != {LANES}:
+            timeout = min(timeout, DDS_POLL_S)
+        fds = [self._wake_r, *(fd for p in self._lanes for fd in p.lane_fds())]
+        ready, _, _ = select.select(fds, (), (), max(timeout, 0.0))
+        if self._wake_r in ready:
+            with contextlib.suppress(OSError):
+                os.read(self._wake_r, 4096)
+        return True
 
 
 class DrivenContext(Context):

@@ -5,12 +5,17 @@ enable service, timers, the ``/clock`` subscription of ``use_sim_time``, ...) on
 and dispatch each callback through a task: ~0.1-0.2 ms of Python per message, the dominant cost
 of a lockstep step (measured: ``bench/graph_bench.py``, docs/performance.md). Here a node's
 per-sample subscriptions are created in a callback group that no executor ever waits on
-(:class:`DetachedGroup`); a :class:`~.hotloop.HotLoop` thread (:mod:`.hotloop`) waits on a
-minimal wait set holding just those subscriptions and a stop guard condition, takes every
-queued message with ``take_message`` and runs its handler under the node's lock.
-Services, parameters, timers and ``/clock`` stay with the normal executor, which wakes rarely.
+(:class:`~.callbackgroups.DetachedGroup`); a :class:`~.hotloop.HotLoop` thread
+(:mod:`.hotloop`) waits on a minimal wait set holding just those subscriptions and a stop guard
+condition, takes every queued message with ``take_message`` and runs its handler under the
+node's lock. Services, parameters, timers and ``/clock`` stay with the normal executor, which
+wakes rarely.
 
-One process per node: each node's :class:`HotPath` gets its own loop. Composed (several nodes on
+One process per node: each node's :class:`HotPath` gets its own loop, and its per-sample
+messages to and from the other processes of this host travel on host lanes (FIFOs,
+:mod:`.hostlane`, :mod:`.laneinput`): the loop waits on its subscriptions' lanes, which the
+writers' writes wake, and a writer publishes on DDS only for readers without a lane (a
+recorder process, ``ros2 topic echo``, another host). Composed (several nodes on
 one context, :mod:`dcsms_ros.nodes.container`): the host creates the nodes on a
 :class:`DrivenContext`, whose :attr:`~DrivenContext.driver` loop serves the hot paths of every node
 of the context, in one thread (the driver belongs to the context, not to the module: nothing to
@@ -23,46 +28,28 @@ outside the process is matched (:mod:`.intraprocess`: how duplicates are avoided
 readers are told apart). Subscriptions of topics without an in-process writer are served from
 DDS as in one process per node.
 
-``DCSMS_HOT_PATH=0`` in the environment turns it off: the subscriptions are then ordinary
-executor subscriptions with the same handlers (the benchmark compares both in one run).
-Subscriptions that nobody needs to serve per sample (observers such as the trip monitor) can
-be created detached and emptied in batches by :meth:`HotPath.drain`.
+``DCSMS_HOT_PATH=0`` turns it off: the subscriptions are then ordinary executor subscriptions
+with the same handlers. Subscriptions nobody serves per sample (observers such as the trip
+monitor) can be created detached and emptied in batches (:meth:`HotPath.take`).
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable, Collection
 from typing import Any
 
-from rclpy.callback_groups import CallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile
 from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.localbus import Endpoint, Inbox, LocalBus
+from dcsms_ros.ros.callbackgroups import DetachedGroup
+from dcsms_ros.ros.hostlane import LaneReader
 from dcsms_ros.ros.hotloop import GIL_SWITCH_S, IDLE_S, DrivenContext, HotLoop, enabled
 from dcsms_ros.ros.intraprocess import BusPublisher, DirectPublisher, HotPublisher
-
-
-class DetachedGroup(CallbackGroup):
-    """A callback group no executor serves: its entities are never put in a wait set."""
-
-    def can_execute(self, entity: Any) -> bool:
-        return False
-
-    def beginning_execution(self, entity: Any) -> bool:
-        return False
-
-    def ending_execution(self, entity: Any) -> None:
-        return None
-
-
-class UnlockedGroup(ReentrantCallbackGroup):
-    """A callback group whose timers run outside the node's hot-path lock
-    (:func:`.serialized.serialize` leaves them unwrapped): for a periodic job that touches
-    no node state and is thread-safe on its own (a part recorder's chunk flush, which
-    compresses and writes a file and must not hold up the hot thread meanwhile)."""
+from dcsms_ros.ros.laneinput import lanes_for
 
 
 class HotPath:
@@ -98,9 +85,8 @@ class HotPath:
         self.bus: LocalBus | None = (context.bus if self.on and isinstance(
             context, DrivenContext) else None)
         self._inboxes: dict[Subscription, Inbox] = {}
-        #: each reader's topic (rclpy's ``topic_name`` enters the handle and asks rcl, for
-        #: every force reader at every plant tick; 3 alternating pairs of composed real-time
-        #: runs: the driver's CPU 256-271 us per sample against 268-273, a small gain)
+        #: each reader's topic (rclpy's ``topic_name`` asks rcl: for every force reader at every
+        #: plant tick, composed real time 256-271 us of driver CPU a sample against 268-273)
         self._topic_of: dict[Subscription, str] = {}
         self._served: list[tuple[Subscription, Callable[[Any], None]]] = []
         #: per served subscription: handle, message type, raw, handler, flush (read once, not
@@ -112,6 +98,9 @@ class HotPath:
         self._replaced: dict[Subscription, Subscription] = {}
         #: what :meth:`after` queued while the host holds the lock for an executor callback
         self._deferred: list[Callable[[], None]] | None = None
+        #: One process per node: per-sample messages between processes of this host go on
+        #: lanes (:mod:`.hostlane`), DDS only for the others.
+        self.lanes = lanes_for(node) if self.on and self.bus is None else None
 
     def after(self, fn: Callable[[], None]) -> None:
         """Run ``fn()`` once the executor callback in progress has released the lock (the
@@ -156,23 +145,30 @@ class HotPath:
             plain = self.node.create_subscription(msg_type, topic, each, qos, raw=raw)
             self.readers.append(plain)
             return plain
+        lane = self._lane_reader(topic, raw)
         sub = self._reader(msg_type, topic, handler, qos, raw)
         self.readers.append(sub)
         self.subs.append((sub, handler))
         self._flush[sub] = flush
+        latest = (isinstance(qos, QoSProfile) and qos.history == HistoryPolicy.KEEP_LAST
+                  and qos.depth == 1)
         if self.bus is not None and raw:
             # keep-last 1 (real time): the newest sample only, as its DDS reader would keep
-            self._local(sub.topic_name, each, qos.history == HistoryPolicy.KEEP_LAST and
-                        qos.depth == 1)
+            self._local(sub.topic_name, each, latest)
+        if self.lanes is not None and lane is not None:
+            self.lanes.serve_input(sub, lane, handler, flush, latest)
         return sub
+
+    def _lane_reader(self, topic: str, raw: bool) -> LaneReader | None:
+        """The lane of a subscription to ``topic`` about to be made (raw, with lanes)."""
+        return (self.lanes.reader(self.node.resolve_topic_name(topic))
+                if self.lanes is not None and raw else None)
 
     def _reader(self, msg_type: Any, topic: str, handler: Callable[[Any], None],
                 qos: QoSProfile, raw: bool) -> Subscription:
-        """The DDS reader of a hot subscription. Composed, keep-last 1 until :meth:`resolve`:
-        a reader of a topic written in the process is never read, and a full history of
-        unread samples makes every DDS publication cost more (a reliable transient-local
-        reader of depth 25,000: ~350 us instead of ~5 us, measured in rclpy); one of a topic
-        without an in-process writer gets ``qos`` back there."""
+        """The DDS reader of a hot subscription. Composed, keep-last 1 until :meth:`resolve`
+        (then ``qos`` if its topic has no in-process writer): a full history of unread samples
+        makes every DDS publication cost more (depth 25,000: ~350 us instead of ~5 us)."""
         if self.bus is None or not raw:
             return self.node.create_subscription(msg_type, topic, handler, qos,
                                                  callback_group=self._group, raw=raw)
@@ -197,7 +193,13 @@ class HotPath:
         """A per-sample publisher (serialized messages): composed, a :class:`BusPublisher`
         (in-process delivery, DDS only for remote readers); else a :class:`DirectPublisher`."""
         pub = self.node.create_publisher(msg_type, topic, qos)
-        out = DirectPublisher(pub) if self.bus is None else BusPublisher(pub, self.bus)
+        if self.bus is not None:
+            out: HotPublisher = BusPublisher(pub, self.bus)
+        else:
+            # a transient-local writer's late readers get its history from DDS, not a lane
+            lane = (self.lanes.writer(pub.topic_name) if self.lanes is not None and
+                    qos.durability != DurabilityPolicy.TRANSIENT_LOCAL else None)
+            out = DirectPublisher(pub, lane)
         self.writers.append(out)
         return out
 
@@ -216,14 +218,24 @@ class HotPath:
         """Topics (those in ``wanted``, default every one) of the path's readers that take
         from DDS and whose reader has matched no writer yet; a reader served in process is
         matched. The reader's own count: a writer may have matched it before it matched the
-        writer, and until it does it drops the writer's samples."""
+        writer, and until it does it drops the writer's samples. A reader with a lane is
+        matched once its writers said hello there too (:meth:`.LaneInput.ready`); first the
+        path's writers open lanes to the readers found since (:meth:`.PathLanes.connect`)."""
+        lanes = self.lanes.connect() if self.lanes is not None else {}
         out: list[str] = []
+        now = time.monotonic()
         for asked in self.readers:
             sub = self._replaced.get(asked, asked)
             if wanted is not None and sub.topic_name not in wanted:
                 continue
-            if self.served_from_dds(sub) and sub.get_publisher_count() == 0:
+            lane = lanes.get(sub)
+            if lane is not None:
+                if not lane.ready(now):
+                    out.append(sub.topic_name)
+            elif self.served_from_dds(sub) and sub.get_publisher_count() == 0:
                 out.append(sub.topic_name)
+        if self.lanes is not None and self.lanes.pending():
+            self.wake()  # what the check read off a lane waits for the hot loop
         return out
 
     def resolve(self) -> list[Subscription]:
@@ -240,19 +252,24 @@ class HotPath:
                 self._flush[new] = self._flush.pop(old, None)
         self._asked.clear()
         self._served = [(s, h) for s, h in self.subs if self.served_from_dds(s)]
+        # a subscription with a lane is read by its LaneInput (the lane, and DDS when needed)
         self._takes = [(s.handle, s.msg_type, s.raw, h, self._flush.get(s))
-                       for s, h in self._served]
+                       for s, h in self._served
+                       if self.lanes is None or s not in self.lanes.inputs]
         return [s for s, _ in self._served]
 
     def detached(self, msg_type: Any, topic: str, qos: QoSProfile,
                  raw: bool = False) -> Subscription:
         """A subscription nobody waits on; empty it with :meth:`take` or :meth:`drain_timed`."""
+        lane = self._lane_reader(topic, raw)
         sub = self._reader(msg_type, topic, lambda m: None, qos, raw)
         self.readers.append(sub)
         if self.bus is not None and raw:
             box = self._local(sub.topic_name, None)
             assert isinstance(box, Inbox)
             self._inboxes[sub] = box
+        if self.lanes is not None and lane is not None:
+            self.lanes.detached_input(sub, lane)
         return sub
 
     def take(self, sub: Subscription, limit: int = 100000) -> list[Any]:
@@ -271,6 +288,9 @@ class HotPath:
         """Take every queued message of detached ``sub`` (at most ``limit``), oldest first,
         with its arrival: ``handler(msg, t_ns)`` (system clock, ns: DDS reception, or
         in-process publication)."""
+        lane = self.lanes.inputs.get(sub) if self.lanes is not None else None
+        if lane is not None:
+            return lane.drain(handler)
         if sub in self._replaced:  # no in-process writer: its DDS reader with the QoS asked
             sub = self._replaced[sub]
         else:
@@ -335,8 +355,31 @@ class HotPath:
                     handler(got[0])
                 if flush is not None and n > n0:
                     flush()
+            if self.lanes is not None:
+                n += self.lanes.serve()
         self.messages += n
         return n
+
+    def lane_fds(self) -> list[int]:
+        """The FIFOs of the served subscriptions' lanes (the hot loop waits on them)."""
+        return self.lanes.fds() if self.lanes is not None else []
+
+    def lane_state(self, now: float) -> str:
+        """How the hot loop must wait (:meth:`.PathLanes.state`; ``now``: monotonic s)."""
+        return self.lanes.state(now, len(self._served)) if self.lanes is not None else "dds"
+
+    def close_lanes(self) -> None:
+        """Say bye on the writers' lanes and remove the readers' (the node is going); log,
+        per writer, how its messages went."""
+        if self.lanes is None:
+            return
+        for w in self.writers:
+            if isinstance(w, DirectPublisher) and w.lane is not None:
+                t = w.lane.table
+                self.node.get_logger().info(
+                    f"lanes: {w.lane.topic}: {t.sent} messages on lanes, {w.on_dds} on DDS, "
+                    f"{t.drops} lost on full lanes")
+        self.lanes.close()
 
     def tick(self) -> float | None:
         """Run the tick under the lock (None without one)."""
@@ -354,6 +397,4 @@ def _then(handler: Callable[[Any], None], flush: Callable[[], None]) -> Callable
     return each
 
 
-# the loop's names too, for the modules that import them from here
-__all__ = ["GIL_SWITCH_S", "IDLE_S", "DetachedGroup", "DrivenContext", "HotLoop", "HotPath",
-           "UnlockedGroup", "enabled"]
+__all__ = ["GIL_SWITCH_S", "IDLE_S", "DrivenContext", "HotLoop", "HotPath", "enabled"]

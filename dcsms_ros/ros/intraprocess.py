@@ -37,6 +37,7 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy
 
 from dcsms_ros.protocols.localbus import BusWriter, HeldHistory, LocalBus, MatchCount
+from dcsms_ros.ros.hostlane import LaneWriter
 
 
 class _Wrapped:
@@ -126,14 +127,24 @@ class DirectPublisher(_Wrapped):
     messages only. The handle lives as long as the node: the hot loop ends before the node is
     destroyed (:func:`.runtime.run`); a publication after that raises rclpy's error.
 
+    With a ``lane`` writer (:mod:`.hostlane`), each message goes into the lanes of this host's
+    readers first, and on DDS only while DDS matched more readers than there are lanes
+    (:meth:`~dcsms_ros.protocols.lanes.LaneTable.dds`; the count at most 1 ms old, as a
+    composed publisher's).
+
     Parameters
     ----------
     pub : Publisher
         The node's publisher of the topic.
+    lane : LaneWriter, optional
+        The topic's lanes (None: DDS only).
     """
 
-    def __init__(self, pub: Publisher) -> None:
+    def __init__(self, pub: Publisher, lane: LaneWriter | None = None) -> None:
         self.pub = pub
+        self.lane = lane
+        #: Messages published on DDS (with lanes: those for readers without one).
+        self.on_dds = 0
         self._raw: Callable[[bytes], None] = pub.handle.publish_raw
         self._matched = MatchCount(pub.handle.get_subscription_count)
         self._durable = pub.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
@@ -148,12 +159,24 @@ class DirectPublisher(_Wrapped):
         1 ms old, :class:`~dcsms_ros.protocols.localbus.MatchCount`); a transient-local one
         always publishes, for the history a late reader gets."""
         obs = self._observer
+        lane = self.lane
+        if lane is not None:
+            t_ns = time.time_ns()
+            matched = self._matched()
+            lanes = lane.count(matched, time.monotonic_ns())  # a new reader gets this one too
+            if not lane.write(data, t_ns) or matched > lanes:
+                self._raw(data)
+                self.on_dds += 1
+            if obs is not None:
+                obs(data, t_ns)
+            return
         if obs is None:
             self._raw(data)
             return
         if self._durable or self._matched():
             self._raw(data)
         obs(data, time.time_ns())
+
 
     def observe(self, observer: Callable[[bytes, int], None]) -> None:
         """After each publication, call ``observer(data, t_ns)``: the bytes and the system

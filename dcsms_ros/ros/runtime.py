@@ -193,7 +193,11 @@ def close_nodes(nodes: Sequence[Node], before_destroy: Callable[[], object] = la
     finally:
         before_destroy()
     for node in nodes:
+        hot = hot_path(node)
         node.destroy_node()
+        if hot is not None:
+            # after its DDS readers went: a writer would send on DDS to a reader without a lane
+            hot.close_lanes()
 
 
 class Attachment(Protocol):

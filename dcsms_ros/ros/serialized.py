@@ -33,8 +33,9 @@ from typing import Any
 
 from rclpy.node import Node
 
+from dcsms_ros.ros.callbackgroups import DetachedGroup, UnlockedGroup
 from dcsms_ros.ros.hosted import hot_path
-from dcsms_ros.ros.hotpath import DetachedGroup, HotPath, UnlockedGroup
+from dcsms_ros.ros.hotpath import HotPath
 
 #: Packages of the services every rclpy node creates for itself (parameters, type description).
 BUILTIN_SERVICES = ("rcl_interfaces.", "type_description_interfaces.")
@@ -131,7 +132,7 @@ class Serialized:
 
 def serialize(node: Node) -> Serialized | None:
     """Wrap the executor callbacks of ``node`` (timers but those of an
-    :class:`~.hotpath.UnlockedGroup`, services but rclpy's own, subscriptions not served by
+    :class:`~.callbackgroups.UnlockedGroup`, services but rclpy's own, subscriptions not served by
     the hot loop, guard conditions) to run under its hot-path lock; returns the
     wrapper's record, or None for a node without a hot path. Call before the executor gets the
     node."""

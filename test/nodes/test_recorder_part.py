@@ -26,9 +26,10 @@ from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import RECORD_PART_ENV, RECORD_TOPICS_ENV
 from dcsms_ros.nodes.recorder_part import attach
 from dcsms_ros.ros import qos
+from dcsms_ros.ros.callbackgroups import UnlockedGroup
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import Hosted
-from dcsms_ros.ros.hotpath import HotPath, UnlockedGroup
+from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import DirectPublisher
 from dcsms_ros.ros.serialized import serialize
 

@@ -1,0 +1,174 @@
+"""Host lanes on real FIFOs between real processes (no ROS): delivery, loss, gone peers."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+from dcsms_ros.ros import hostlane
+from dcsms_ros.ros.hostlane import (
+    PIPE_SIZE,
+    LaneReader,
+    LaneWriter,
+    host_key,
+    lane_root,
+    topic_dir,
+)
+
+TOPIC = "/dcsms/velocity/stage1"
+CTX = mp.get_context("fork")
+
+
+def _write(root: str, n: int, size: int, tag: int, drops: mp.Queue) -> None:
+    """A writer process: ``n`` messages of ``size`` bytes (``tag``, k as 4 bytes, filler),
+    paced in bursts of 100; puts how many its lane could not take."""
+    w = LaneWriter(TOPIC, Path(root))
+    w.refresh()
+    for k in range(n):
+        w.write(bytes([tag]) + k.to_bytes(4, "little") + b"x" * (size - 5), time.time_ns())
+        if k % 100 == 99:
+            time.sleep(0.001)
+    drops.put(w.table.drops)
+    w.close()
+
+
+def _drain(r: LaneReader, want: int, timeout_s: float = 20.0) -> list[tuple[bytes, int]]:
+    got: list[tuple[bytes, int]] = []
+    end = time.monotonic() + timeout_s
+    while len(got) < want and time.monotonic() < end:
+        got += r.read()
+    return got
+
+
+def test_every_message_of_two_writer_processes_arrives_whole_and_in_each_writers_order(
+        tmp_path: Path) -> None:
+    """Two processes write 20,000 messages each into one lane at once: the reader gets every
+    one its lane took (the writers count the rest: a starved reader's full pipe), each
+    writer's in order, none torn (a frame is one atomic pipe write), with both hellos and
+    byes."""
+    r = LaneReader(TOPIC, tmp_path)
+    n, size = 20_000, 120
+    drops: mp.Queue = CTX.Queue()
+    procs = [CTX.Process(target=_write, args=(str(tmp_path), n, size, tag, drops))
+             for tag in (1, 2)]
+    for p in procs:
+        p.start()
+    got = _drain(r, 2 * n, timeout_s=5.0)
+    for p in procs:
+        p.join(10)
+    got += r.read()
+    lost = drops.get(timeout=5) + drops.get(timeout=5)
+    assert len(got) + lost == 2 * n
+    assert lost < n // 10
+    for tag in (1, 2):
+        ks = [int.from_bytes(d[1:5], "little") for d, _ in got if d[0] == tag]
+        assert ks == sorted(ks) and len(set(ks)) == len(ks)
+    assert all(len(d) == size and d[5:] == b"x" * (size - 5) for d, _ in got)
+    assert sorted(r.source.writers) == []  # both said bye
+    r.close()
+
+
+def test_a_reader_that_does_not_read_never_blocks_the_writer_and_its_loss_is_counted(
+        tmp_path: Path) -> None:
+    r = LaneReader(TOPIC, tmp_path)
+    w = LaneWriter(TOPIC, tmp_path)
+    assert w.count(1, 0) == 1
+    t0 = time.monotonic()
+    n = 20_000
+    for k in range(n):
+        w.write(k.to_bytes(4, "little") + b"y" * 200, time.time_ns())
+    assert time.monotonic() - t0 < 5.0
+    kept = len(_drain(r, n, timeout_s=0.5))
+    assert w.table.drops == n - kept > 0
+    assert kept * (200 + 4 + 12) <= PIPE_SIZE  # the pipe held what it could
+    w.close()
+    r.close()
+
+
+def test_a_killed_reader_closes_its_lane_and_its_fifo_is_removed_by_the_next_reader(
+        tmp_path: Path) -> None:
+    ready = CTX.Event()
+
+    def reader() -> None:
+        LaneReader(TOPIC, tmp_path)
+        ready.set()
+        time.sleep(60)
+
+    p = CTX.Process(target=reader)
+    p.start()
+    assert ready.wait(10)
+    w = LaneWriter(TOPIC, tmp_path)
+    assert w.count(1, 0) == 1
+    os.kill(p.pid, signal.SIGKILL)
+    p.join(10)
+    w.write(b"after", time.time_ns())  # EPIPE: nobody reads it any more
+    assert w.lanes == {}
+    stale = list(topic_dir(TOPIC, tmp_path).iterdir())
+    assert len(stale) == 1  # killed: it could not remove its FIFO
+    r = LaneReader(TOPIC, tmp_path)
+    assert [f.name for f in topic_dir(TOPIC, tmp_path).iterdir()] == [r.path.name]
+    r.close()
+    assert list(topic_dir(TOPIC, tmp_path).iterdir()) == []
+
+
+def test_a_killed_writer_is_forgotten_by_its_reader(tmp_path: Path) -> None:
+    r = LaneReader(TOPIC, tmp_path)
+
+    def writer() -> None:
+        w = LaneWriter(TOPIC, tmp_path)
+        w.refresh()
+        w.write(b"hi", time.time_ns())
+        time.sleep(60)
+
+    p = CTX.Process(target=writer)
+    p.start()
+    assert [d for d, _ in _drain(r, 1)] == [b"hi"]
+    assert r.writers(0.0) == 1
+    os.kill(p.pid, signal.SIGKILL)
+    p.join(10)
+    assert r.writers(time.monotonic() + 1.0) == 0  # no bye: its process is gone
+    r.close()
+
+
+def test_a_writer_opens_no_lane_to_a_fifo_nobody_reads(tmp_path: Path) -> None:
+    d = topic_dir(TOPIC, tmp_path)
+    d.mkdir(parents=True)
+    os.mkfifo(d / "999999.1")
+    w = LaneWriter(TOPIC, tmp_path)
+    assert w.count(1, 0) == 0
+
+
+def test_lanes_are_keyed_by_namespaces_and_domain(tmp_path: Path) -> None:
+    netns, pidns = (os.stat(f"/proc/self/ns/{k}").st_ino for k in ("net", "pid"))
+    assert host_key(17) == f"{netns}-{pidns}-17"
+    assert lane_root(17, tmp_path) != lane_root(18, tmp_path)
+    assert lane_root(17, tmp_path).parent.stat().st_mode & 0o777 == 0o700
+
+
+@pytest.mark.parametrize(("env", "on"), [({}, True), ({"DCSMS_HOST_LANES": "0"}, False),
+                                         ({"DCSMS_HOST_LANES": "off"}, False),
+                                         ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF"}, False),
+                                         ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}, True)])
+def test_lanes_are_on_unless_turned_off_or_discovery_is(monkeypatch: pytest.MonkeyPatch,
+                                                        env: dict[str, str], on: bool) -> None:
+    monkeypatch.delenv("DCSMS_HOST_LANES", raising=False)
+    monkeypatch.delenv("ROS_AUTOMATIC_DISCOVERY_RANGE", raising=False)
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    assert hostlane.enabled() is on
+
+
+def test_a_message_too_long_for_a_lane_is_refused(tmp_path: Path) -> None:
+    r = LaneReader(TOPIC, tmp_path)
+    w = LaneWriter(TOPIC, tmp_path)
+    w.refresh()
+    assert not w.write(b"z" * 5000, 0)
+    assert w.write(b"z" * 4084, 0)
+    assert [len(d) for d, _ in r.read()] == [4084]
+    w.close()
+    r.close()
