@@ -15,7 +15,9 @@ hostlane`) carries the bytes; this module holds the rules, without ROS or the fi
   (:meth:`LaneTable.dds`). Control frames (:func:`hello`, :func:`bye`) tell a reader which
   writers serve it.
 * **DDS only for the others.** A writer publishes on DDS only while its DDS writer has matched
-  more readers than it has lanes (:meth:`LaneTable.dds`): a recorder process, ``ros2 topic
+  more readers than it has lanes, or the graph shows a reader of the topic that no lane serves
+  (:meth:`LaneTable.dds`, :func:`readers_without_lane`; the second because a lane reader whose
+  DDS reader has not matched yet would hide one that has): a recorder process, ``ros2 topic
   echo``, a node on another host (rclcpp's intra-process rule, for a host).
 * **Duplicates.** A lane reader keeps its DDS reader (graph introspection and the graph
   checks see the same graph as without lanes). While every DDS writer it matched has said
@@ -175,6 +177,23 @@ class CopyLedger:
         return len(self._order)
 
 
+def readers_without_lane(readers: Iterable[str], lane_owners: Iterable[str]) -> int:
+    """How many of the topic's ``readers`` (the graph's subscriptions, by node name, one entry
+    each) are not served by one of the open lanes (whose readers' node names are
+    ``lane_owners``): a node's subscriptions beyond its lanes, and every reader of another
+    node (a recorder process, a tool, a node on another host, or one not announced yet)."""
+    lanes: dict[str, int] = {}
+    for owner in lane_owners:
+        lanes[owner] = lanes.get(owner, 0) + 1
+    out = 0
+    for node in readers:
+        if lanes.get(node, 0) > 0:
+            lanes[node] -= 1
+        else:
+            out += 1
+    return out
+
+
 class LaneTable:
     """A writer's lanes' bookkeeping and its decision per message: whether DDS too."""
 
@@ -185,11 +204,12 @@ class LaneTable:
         self.sent = 0
 
     @staticmethod
-    def dds(matched: int, lanes: int, size: int) -> bool:
-        """True if a message of ``size`` bytes must go on DDS: it is too long for a lane, or
-        DDS matched a reader that has no lane (``matched`` DDS readers, ``lanes`` open
-        lanes)."""
-        return size > MAX_PAYLOAD or matched > lanes
+    def dds(matched: int, lanes: int, size: int, outside: int = 0) -> bool:
+        """True if a message of ``size`` bytes must go on DDS: it is too long for a lane, DDS
+        matched more readers than there are lanes (``matched`` DDS readers, ``lanes`` open
+        lanes), or the graph shows ``outside`` readers that have no lane (a lane reader whose
+        DDS reader has not matched yet must not hide one that has)."""
+        return size > MAX_PAYLOAD or matched > lanes or outside > 0
 
     def drop(self, lane: str) -> None:
         """Count a message lane ``lane`` could not take (its pipe was full)."""
@@ -214,4 +234,5 @@ __all__ = [
     "bye",
     "frame",
     "hello",
+    "readers_without_lane",
 ]

@@ -32,6 +32,7 @@ import fcntl
 import itertools
 import os
 import tempfile
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from dcsms_ros.protocols.lanes import (
@@ -42,13 +43,15 @@ from dcsms_ros.protocols.lanes import (
     bye,
     frame,
     hello,
+    readers_without_lane,
 )
 
 #: The environment variable that turns lanes off (``0``, ``false``, ``no``, ``off``).
 ENV = "DCSMS_HOST_LANES"
 #: How often a writer looks for new readers of its topic when its DDS count did not change (s):
-#: a reader replaced by another between two looks (a restarted node) is found within it.
-REFRESH_S = 0.5
+#: a reader replaced by another between two looks (a restarted node) is found within it. A
+#: look lists the topic's directory and asks the graph's reader count (~7 us).
+REFRESH_S = 0.1
 #: Pipe buffer asked for each lane (bytes; Linux's unprivileged maximum): ~6,000 frames, 3 s
 #: of one 2 kHz topic, for a reader that drains in blocks (mode_switch every 50 ms).
 PIPE_SIZE = 1 << 20
@@ -105,9 +108,19 @@ def pid_alive(pid: int) -> bool:
     return True
 
 
+def lane_name(node: str) -> str:
+    """A new lane's file name: ``<pid>.<n>.<reader's node, / as %>``."""
+    return f"{os.getpid()}.{next(_serial)}.{node.replace('/', '%')}"
+
+
 def _owner(name: str) -> int | None:
     head = name.split(".", 1)[0]
     return int(head) if head.isdigit() else None
+
+
+def _owner_node(name: str) -> str:
+    parts = name.split(".", 2)
+    return parts[2].replace("%", "/") if len(parts) == 3 else ""
 
 
 class LaneReader:
@@ -119,9 +132,11 @@ class LaneReader:
         Fully resolved topic name.
     root : Path
         The lanes' directory (:func:`lane_root`).
+    node : str
+        The reading node's fully qualified name (writers tell its DDS reader by it).
     """
 
-    def __init__(self, topic: str, root: Path) -> None:
+    def __init__(self, topic: str, root: Path, node: str) -> None:
         self.topic = topic
         d = topic_dir(topic, root)
         d.mkdir(parents=True, exist_ok=True)
@@ -130,7 +145,7 @@ class LaneReader:
             if pid is not None and pid != os.getpid() and not pid_alive(pid):
                 with contextlib.suppress(OSError):
                     os.unlink(d / name)
-        self.path = d / f"{os.getpid()}.{next(_serial)}"
+        self.path = d / lane_name(node)
         with contextlib.suppress(FileNotFoundError):
             os.unlink(self.path)
         os.mkfifo(self.path, 0o600)
@@ -190,13 +205,27 @@ class LaneWriter:
         Fully resolved topic name.
     root : Path
         The lanes' directory (:func:`lane_root`).
+    readers : callable, optional
+        ``readers()`` -> (the fully qualified node name of each subscription of the topic in
+        the graph, whether every one's node is known), asked when ``count()`` or the lanes
+        changed, and at each look while a node is unknown: a reader outside the lanes gets DDS
+        even while lane readers not matched yet keep the matched count low.
+    count : callable, optional
+        ``count()`` -> how many subscriptions the graph shows (cheap: asked at each look).
     """
 
-    def __init__(self, topic: str, root: Path) -> None:
+    def __init__(self, topic: str, root: Path,
+                 readers: Callable[[], tuple[Sequence[str], bool]] = lambda: ((), True),
+                 count: Callable[[], int] = lambda: 0) -> None:
         self.topic = topic
         self.dir = topic_dir(topic, root)
         self.lanes: dict[str, int] = {}
         self.table = LaneTable()
+        self._readers, self._count = readers, count
+        #: Readers the graph shows that no lane serves.
+        self.outside = 0
+        self._graph = -1
+        self._unsure = False
         self._due = 0
         self._matched = -1
         self._pid = os.getpid()
@@ -204,7 +233,17 @@ class LaneWriter:
 
     def refresh(self) -> None:
         """Open a lane to every reader of the topic that has none yet, close the lanes of
-        readers that are gone."""
+        readers that are gone; count the graph's readers without a lane."""
+        before = set(self.lanes)
+        self._open()
+        graph = self._count()
+        if graph != self._graph or set(self.lanes) != before or self._unsure:
+            self._graph = graph
+            readers, known = self._readers()
+            self._unsure = not known  # a reader's node not announced yet: asked at each look
+            self.outside = readers_without_lane(readers, map(_owner_node, self.lanes))
+
+    def _open(self) -> None:
         try:
             names = set(os.listdir(self.dir))
         except FileNotFoundError:
@@ -224,14 +263,16 @@ class LaneWriter:
                 continue
             self.lanes[name] = fd
 
-    def count(self, matched: int, now_ns: int) -> int:
-        """The open lanes, looked for again when the DDS writer's ``matched`` count changed or
-        :data:`REFRESH_S` passed (``now_ns``: monotonic ns)."""
+    def dds(self, matched: int, now_ns: int, size: int) -> bool:
+        """Whether a message of ``size`` bytes must go on DDS too
+        (:meth:`~dcsms_ros.protocols.lanes.LaneTable.dds`), the lanes looked for again first
+        when the DDS writer's ``matched`` count changed or :data:`REFRESH_S` passed
+        (``now_ns``: monotonic ns)."""
         if matched != self._matched or now_ns >= self._due:
             self._matched = matched
             self._due = now_ns + int(REFRESH_S * 1e9)
             self.refresh()
-        return len(self.lanes)
+        return self.table.dds(matched, len(self.lanes), size, self.outside)
 
     def write(self, data: bytes, t_ns: int) -> bool:
         """Write ``data``, published at ``t_ns`` (system clock ns), into every lane (never
@@ -272,4 +313,4 @@ class LaneWriter:
 
 
 __all__ = ["ENV", "PIPE_SIZE", "REFRESH_S", "LaneReader", "LaneWriter", "enabled", "host_key",
-           "lane_root", "pid_alive", "topic_dir"]
+           "lane_name", "lane_root", "pid_alive", "topic_dir"]

@@ -162,9 +162,10 @@ class DirectPublisher(_Wrapped):
         lane = self.lane
         if lane is not None:
             t_ns = time.time_ns()
-            matched = self._matched()
-            lanes = lane.count(matched, time.monotonic_ns())  # a new reader gets this one too
-            if not lane.write(data, t_ns) or matched > lanes:
+            # first: a reader found now gets this message too
+            dds = lane.dds(self._matched(), time.monotonic_ns(), len(data))
+            lane.write(data, t_ns)
+            if dds:
                 self._raw(data)
                 self.on_dds += 1
             if obs is not None:

@@ -4,7 +4,7 @@ The subscription's messages come from the lane while every DDS writer it matched
 there (:meth:`~dcsms_ros.protocols.lanes.LaneSource.covered`); its DDS reader then holds only
 the copies a lane writer publishes for readers without a lane, and is left unread. Otherwise
 (a writer without a lane: another host, a tool, a transient-local writer) DDS is read too, and
-a DDS message a lane delivered recently is dropped. :class:`~.hotpath.HotPath` keeps one per
+each message cancels its copy the other way (:class:`~dcsms_ros.protocols.lanes.CopyLedger`). :class:`~.hotpath.HotPath` keeps one per
 subscription of a process of one node; its hot loop waits on the lanes' FIFOs while each of
 them is covered (:meth:`LaneInput.state`).
 """
@@ -22,6 +22,7 @@ from rclpy.subscription import Subscription
 from dcsms_ros.protocols.lanes import CopyLedger
 from dcsms_ros.protocols.localbus import MatchCount
 from dcsms_ros.ros import hostlane
+from dcsms_ros.ros.connectivity import UNKNOWN_NODE
 from dcsms_ros.ros.hostlane import LaneReader, LaneWriter
 
 #: How long (s) a reader waits, after its DDS reader matched a writer, for that writer's hello on
@@ -157,14 +158,15 @@ class PathLanes:
 
     Parameters
     ----------
+    node : Node
+        The path's node (its name marks its lanes; its graph view tells a writer which
+        readers have no lane; its logger says which subscription got none).
     root : Path
         The lanes' directory (:func:`~.hostlane.lane_root` of the node's ROS domain).
-    warn : callable
-        ``warn(text)``: a subscription that gets no lane (the node's logger).
     """
 
-    def __init__(self, root: Path, warn: Callable[[str], object]) -> None:
-        self.root, self._warn = root, warn
+    def __init__(self, node: Node, root: Path) -> None:
+        self.node, self.root = node, root
         self.inputs: dict[Subscription, LaneInput] = {}
         #: served inputs: input, handler of (data, t_ns), flush, keep-last 1
         self._served: list[tuple[LaneInput, Callable[[Any, int], None],
@@ -176,9 +178,9 @@ class PathLanes:
         reader, so that no writer matches that reader without finding its lane; None (a
         warning, and the subscription reads DDS alone) if it could not be made."""
         try:
-            return LaneReader(topic, self.root)
+            return LaneReader(topic, self.root, self.node.get_fully_qualified_name())
         except OSError as exc:  # e.g. a file system without FIFOs
-            self._warn(f"no host lane for {topic} ({exc}): DDS only")
+            self.node.get_logger().warning(f"no host lane for {topic} ({exc}): DDS only")
             return None
 
     def serve_input(self, sub: Subscription, reader: LaneReader,
@@ -196,7 +198,9 @@ class PathLanes:
 
     def writer(self, topic: str) -> LaneWriter:
         """A lane writer of ``topic`` (closed with the path)."""
-        w = LaneWriter(topic, self.root)
+        nd = self.node
+        w = LaneWriter(topic, self.root, lambda: _reader_nodes(nd, topic),
+                       lambda: nd.count_subscribers(topic))
         self.writers.append(w)
         return w
 
@@ -253,11 +257,19 @@ def lanes_for(node: Node) -> PathLanes | None:
     if not hostlane.enabled():
         return None
     try:
-        log = node.get_logger()
-        return PathLanes(hostlane.lane_root(node.context.get_domain_id()), log.warning)
+        return PathLanes(node, hostlane.lane_root(node.context.get_domain_id()))
     except OSError as exc:
         node.get_logger().warning(f"host lanes off ({exc}): every per-sample message on DDS")
         return None
+
+
+def _reader_nodes(node: Node, topic: str) -> tuple[list[str], bool]:
+    """The fully qualified node name of each subscription of ``topic`` in ``node``'s graph
+    view, and whether every one's node is known (a reader announced before its node shows a
+    placeholder name, no lane's)."""
+    infos = node.get_subscriptions_info_by_topic(topic)
+    return ([f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos],
+            all(i.node_name != UNKNOWN_NODE for i in infos))
 
 
 def _untimed(handler: Callable[[Any], None]) -> Callable[[Any, int], None]:

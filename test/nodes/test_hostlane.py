@@ -51,7 +51,7 @@ def test_every_message_of_two_writer_processes_arrives_whole_and_in_each_writers
     one its lane took (the writers count the rest: a starved reader's full pipe), each
     writer's in order, none torn (a frame is one atomic pipe write), with both hellos and
     byes."""
-    r = LaneReader(TOPIC, tmp_path)
+    r = LaneReader(TOPIC, tmp_path, "/dcsms/reader")
     n, size = 20_000, 120
     drops: mp.Queue = CTX.Queue()
     procs = [CTX.Process(target=_write, args=(str(tmp_path), n, size, tag, drops))
@@ -75,9 +75,9 @@ def test_every_message_of_two_writer_processes_arrives_whole_and_in_each_writers
 
 def test_a_reader_that_does_not_read_never_blocks_the_writer_and_its_loss_is_counted(
         tmp_path: Path) -> None:
-    r = LaneReader(TOPIC, tmp_path)
+    r = LaneReader(TOPIC, tmp_path, "/dcsms/reader")
     w = LaneWriter(TOPIC, tmp_path)
-    assert w.count(1, 0) == 1
+    assert not w.dds(1, 0, 200)  # one DDS reader, one lane
     t0 = time.monotonic()
     n = 20_000
     for k in range(n):
@@ -95,7 +95,7 @@ def test_a_killed_reader_closes_its_lane_and_its_fifo_is_removed_by_the_next_rea
     ready = CTX.Event()
 
     def reader() -> None:
-        LaneReader(TOPIC, tmp_path)
+        LaneReader(TOPIC, tmp_path, "/dcsms/reader")
         ready.set()
         time.sleep(60)
 
@@ -103,21 +103,22 @@ def test_a_killed_reader_closes_its_lane_and_its_fifo_is_removed_by_the_next_rea
     p.start()
     assert ready.wait(10)
     w = LaneWriter(TOPIC, tmp_path)
-    assert w.count(1, 0) == 1
+    w.refresh()
+    assert len(w.lanes) == 1
     os.kill(p.pid, signal.SIGKILL)
     p.join(10)
     w.write(b"after", time.time_ns())  # EPIPE: nobody reads it any more
     assert w.lanes == {}
     stale = list(topic_dir(TOPIC, tmp_path).iterdir())
     assert len(stale) == 1  # killed: it could not remove its FIFO
-    r = LaneReader(TOPIC, tmp_path)
+    r = LaneReader(TOPIC, tmp_path, "/dcsms/reader")
     assert [f.name for f in topic_dir(TOPIC, tmp_path).iterdir()] == [r.path.name]
     r.close()
     assert list(topic_dir(TOPIC, tmp_path).iterdir()) == []
 
 
 def test_a_killed_writer_is_forgotten_by_its_reader(tmp_path: Path) -> None:
-    r = LaneReader(TOPIC, tmp_path)
+    r = LaneReader(TOPIC, tmp_path, "/dcsms/reader")
 
     def writer() -> None:
         w = LaneWriter(TOPIC, tmp_path)
@@ -140,7 +141,23 @@ def test_a_writer_opens_no_lane_to_a_fifo_nobody_reads(tmp_path: Path) -> None:
     d.mkdir(parents=True)
     os.mkfifo(d / "999999.1")
     w = LaneWriter(TOPIC, tmp_path)
-    assert w.count(1, 0) == 0
+    assert w.dds(1, 0, 10) and w.lanes == {}
+
+
+def test_a_reader_the_graph_shows_without_a_lane_gets_dds_whatever_the_matched_count(
+        tmp_path: Path) -> None:
+    """Two lane readers (one of them not matched on DDS yet) and a recorder process: DDS
+    matched two readers, there are two lanes, but the recorder has none."""
+    graph = ["/dcsms/fb_stage1", "/dcsms/mode_switch"]
+    readers = [LaneReader(TOPIC, tmp_path, n) for n in graph]
+    w = LaneWriter(TOPIC, tmp_path, lambda: (graph, True), lambda: len(graph))
+    assert not w.dds(2, 0, 100) and len(w.lanes) == 2 and w.outside == 0
+    graph.append("/dcsms_recorder")  # the graph count changed: asked again at the next look
+    assert w.dds(2, 10**9, 100) and w.outside == 1
+    graph.pop()
+    assert not w.dds(2, 2 * 10**9, 100)
+    for r in readers:
+        r.close()
 
 
 def test_lanes_are_keyed_by_namespaces_and_domain(tmp_path: Path) -> None:
@@ -164,7 +181,7 @@ def test_lanes_are_on_unless_turned_off_or_discovery_is(monkeypatch: pytest.Monk
 
 
 def test_a_message_too_long_for_a_lane_is_refused(tmp_path: Path) -> None:
-    r = LaneReader(TOPIC, tmp_path)
+    r = LaneReader(TOPIC, tmp_path, "/dcsms/reader")
     w = LaneWriter(TOPIC, tmp_path)
     w.refresh()
     assert not w.write(b"z" * 5000, 0)

@@ -70,7 +70,9 @@ def test_one_process_per_node_uses_lanes_and_dds_only_for_a_reader_without_one(c
         on_lanes, on_dds, lost = lines[topic]
         assert on_lanes >= samples // 2 and on_dds == 0 and lost == 0, (topic, lines)
     on_lanes, on_dds, lost = lines[topics.DEFAULT.velocity("stage1")]
-    assert on_dds == on_lanes >= samples // 2 and lost == 0, lines  # the probe has no lane
+    # the probe has no lane: DDS from the writer's match with it on (the graph, which the
+    # plant waits for, may show it earlier)
+    assert on_lanes >= samples // 2 and on_dds >= samples // 4 and lost == 0, lines
     assert len(stamps) == len(set(stamps)) >= 0.9 * on_dds, len(stamps)  # best effort
 
 

@@ -15,6 +15,7 @@ from dcsms_ros.protocols.lanes import (
     bye,
     frame,
     hello,
+    readers_without_lane,
 )
 
 
@@ -95,3 +96,15 @@ def test_a_full_lane_loses_the_message_and_it_is_counted_per_lane() -> None:
     t.drop("12.1")
     t.drop("13.1")
     assert t.dropped == {"12.1": 2, "13.1": 1} and t.drops == 3
+
+
+@pytest.mark.parametrize(("readers", "owners", "outside"), [
+    (["/a", "/b"], ["/a", "/b"], 0),
+    (["/a", "/b", "/rec"], ["/a", "/b"], 1),  # a recorder process
+    (["/a", "/a"], ["/a"], 1),  # a node's second subscription without a lane
+    (["/a"], ["/a", "/c"], 0),  # a lane reader the graph does not show yet
+    (["/_NODE_NAME_UNKNOWN_"], ["/a"], 1),  # announced before its node: counted outside
+])
+def test_readers_without_a_lane_are_counted_by_node(readers: list[str], owners: list[str],
+                                                     outside: int) -> None:
+    assert readers_without_lane(readers, owners) == outside
