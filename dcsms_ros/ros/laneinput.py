@@ -4,9 +4,9 @@ The subscription's messages come from the lane while every DDS writer it matched
 there (:meth:`~dcsms_ros.protocols.lanes.LaneSource.covered`); its DDS reader then holds only
 the copies a lane writer publishes for readers without a lane, and is left unread. Otherwise
 (a writer without a lane: another host, a tool, a transient-local writer) DDS is read too, and
-each message cancels its copy the other way (:class:`~dcsms_ros.protocols.lanes.CopyLedger`). :class:`~.hotpath.HotPath` keeps one per
-subscription of a process of one node; its hot loop waits on the lanes' FIFOs while each of
-them is covered (:meth:`LaneInput.state`).
+each message cancels its copy the other way (:class:`~dcsms_ros.protocols.lanes.CopyLedger`).
+:class:`~.hotpath.HotPath` keeps one per subscription of a process of one node; its hot loop
+waits on the lanes' FIFOs while each of them is covered (:meth:`LaneInput.state`).
 """
 
 from __future__ import annotations
