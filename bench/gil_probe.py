@@ -114,7 +114,8 @@ IDLE = "(executor idle: the driver alone)"
 BUSY = "(executor busy, no callback: rclpy's wait-set work)"
 
 
-def attribute(log: dict[str, list[Sequence[Any]]], busy_share: float = 0.3) -> dict[str, Any]:
+def attribute(log: dict[str, list[Sequence[Any]]], busy_share: float = 0.3,
+              seconds: float | None = None) -> dict[str, Any]:
     """Attribute the late samples of one run's probe log.
 
     Parameters
@@ -128,6 +129,9 @@ def attribute(log: dict[str, list[Sequence[Any]]], busy_share: float = 0.3) -> d
     busy_share : float
         A burst with no callback counts as ``BUSY`` when the executor's thread was outside its
         wait for more than this share of the burst's window, else as ``IDLE``.
+    seconds : float, optional
+        The run's duration: the plant steps no sample beyond it, though the last burst may
+        have counted one more as due.
 
     Returns
     -------
@@ -198,7 +202,10 @@ def attribute(log: dict[str, list[Sequence[Any]]], busy_share: float = 0.3) -> d
         st = gc_stats.setdefault(f"gen {int(g[2])}", {"count": 0, "max_ms": 0.0})
         st["count"] += 1
         st["max_ms"] = max(st["max_ms"], (g[1] - g[0]) * 1e3)
-    return {"samples_stepped": sum(d[2] for d in due), "late": late, "causes": dict(causes),
+    stepped = sum(d[2] for d in due)
+    if seconds is not None and due:
+        stepped = min(stepped, round(seconds / due[0][3]))
+    return {"samples_stepped": stepped, "late": late, "causes": dict(causes),
             "gc": gc_stats,
             "lateness_ms": {"p50": q(0.5), "p99": q(0.99), "max": q(1.0)},
             "executor": executor, "callbacks": callbacks}
@@ -228,7 +235,7 @@ def run_once(seconds: float, config: Path, mode: str, rt_priority: int, tmp: Pat
     dumps = sorted(tmp.glob(f"{prefix.name}.*.json"), key=lambda f: f.stat().st_size)
     if not dumps:
         raise RuntimeError("the composed process left no probe log (did it exit normally?)")
-    return attribute(json.loads(dumps[-1].read_text())), summary
+    return attribute(json.loads(dumps[-1].read_text()), seconds=seconds), summary
 
 
 def report(res: dict[str, Any], summary: str) -> str:

@@ -54,6 +54,17 @@ def test_attribute_without_late_steps():
     assert 0.0 < res["lateness_ms"]["p50"] < 0.1
 
 
+@pytest.mark.unit
+def test_a_last_burst_past_the_runs_end_steps_only_the_samples_of_the_run():
+    """The pacer may count two samples due at the last step of a 3 s run; the plant stops at
+    sample 6000 (a CI run reported 6001 stepped)."""
+    due = [(k * T + 1e-5, k * T, 1, T) for k in range(5999)]
+    due.append((5999 * T + T + 1e-5, 6000 * T, 2, T))
+    assert gil_probe.attribute({"due": due, "cb": [], "wait": []})["samples_stepped"] == 6001
+    assert gil_probe.attribute({"due": due, "cb": [], "wait": []},
+                               seconds=3.0)["samples_stepped"] == 6000
+
+
 @pytest.mark.ros
 @pytest.mark.slow
 def test_probe_runs_a_composed_real_time_graph(tmp_path, domain):
