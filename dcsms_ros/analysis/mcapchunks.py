@@ -48,19 +48,25 @@ class Block:
         Payloads (CDR with encapsulation header) when all K have the same size R.
     buffers : list of bytes or None
         Payloads otherwise.
+    offsets : ndarray of int64, shape (K,) or None
+        Each message record's offset in the uncompressed chunk (the order messages of
+        several channels were written in).
     """
 
     channel: int
     log_ns: np.ndarray
     rows: np.ndarray | None = None
     buffers: list[bytes] | None = None
+    offsets: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.log_ns.size)
 
 
-def summary(path: Path) -> tuple[dict[int, tuple[str, str]], list[Any]]:
-    """Channels ``{id: (topic, schema name)}`` and chunk indexes (file order) of one file.
+def summary(path: Path,
+            empty_ok: bool = False) -> tuple[dict[int, tuple[str, str]], list[Any]]:
+    """Channels ``{id: (topic, schema name)}`` and chunk indexes (file order) of one file;
+    ``empty_ok``: a file whose statistics count no message has no chunk (not an error).
 
     Raises
     ------
@@ -72,7 +78,9 @@ def summary(path: Path) -> tuple[dict[int, tuple[str, str]], list[Any]]:
             s = make_reader(f).get_summary()
         except Exception as exc:  # noqa: BLE001 - the mcap library raises many types
             raise Unsupported(f"{path}: no readable summary: {exc}") from None
-    if s is None or not s.chunk_indexes:
+    empty = (empty_ok and s is not None and s.statistics is not None
+             and s.statistics.message_count == 0)
+    if s is None or not (s.chunk_indexes or empty):
         raise Unsupported(f"{path}: no chunk index")
     chans = {cid: (c.topic, s.schemas[c.schema_id].name if c.schema_id in s.schemas else "")
              for cid, c in s.channels.items()}
@@ -142,10 +150,10 @@ def _block(cid: int, rec: np.ndarray, entries: np.ndarray) -> Block:
         raise ValueError("message runs past the end of its chunk")
     if lengths.size and np.all(lengths == lengths[0]):
         rows = _gather(rec, start, int(lengths[0]))
-        return Block(cid, t, rows=rows)
+        return Block(cid, t, rows=rows, offsets=off)
     bufs = [rec[s:s + n].tobytes() for s, n in zip(start.tolist(), lengths.tolist(),
                                                       strict=True)]
-    return Block(cid, t, buffers=bufs)
+    return Block(cid, t, buffers=bufs, offsets=off)
 
 
 def iter_blocks(path: Path, channels: set[int], chunks: list[Any],

@@ -42,8 +42,11 @@ from dcsms_ros.analysis.mcaprecords import (
     U64,
     RowTemplate,
     Topic,
+    channel_index,
     map_field,
     record,
+    rosbag2_metadata,
+    statistics_record,
     string_field,
 )
 from dcsms_ros.cdr import typestore
@@ -57,6 +60,9 @@ ZSTD_LEVEL = 1
 #: chunk: a recorder killed before it closed its bag lost its last ~2 s (:mod:`.bagrecover`
 #: reads the rest back), not its last 4 MB (a slow topic's whole recording).
 CHUNK_MAX_AGE_S = 2.0
+#: libyaml's safe dumper where PyYAML has it (the same text; a run's metadata 24 -> 6 ms).
+_YAML: dict[str, Any] = {"Dumper": getattr(yaml, "CSafeDumper", yaml.SafeDumper),
+                         "sort_keys": True}
 
 
 class McapBagWriter:
@@ -234,6 +240,27 @@ class McapBagWriter:
             rows: Any = buf[a:b]  # C-contiguous rows: no copy
             self._add(memoryview(rows).cast("B"), index, int(t[a]), int(t[b - 1]))
 
+    def write_records(self, t_ns: np.ndarray, channels: np.ndarray, records: np.ndarray,
+                      starts: np.ndarray) -> None:
+        """K message records already encoded (:func:`.mcaprecords.message_records`): record k
+        is ``records[starts[k]:starts[k + 1]]``, log time ``t_ns[k]`` (non-decreasing), this
+        writer's channel ``channels[k]``; cut into chunks as :meth:`write` cuts them."""
+        t = np.ascontiguousarray(t_ns, dtype="<u8")
+        with self._lock:
+            by_channel = {tp.channel: tp for tp in self.topics.values()}
+            for c, n in zip(*np.unique(channels, return_counts=True), strict=True):
+                by_channel[int(c)].count += int(n)
+            a = 0
+            while a < t.size:  # what the open chunk still holds, else a chunk's worth
+                room = self.chunk_bytes - self._chunk.size
+                end = starts[a] + (room if room >= starts[a + 1] - starts[a] else self.chunk_bytes)
+                b = min(max(int(np.searchsorted(starts, end, "right")) - 1, a + 1), t.size)
+                piece: Any = records[starts[a]:starts[b]]  # contiguous: no copy
+                self._add(memoryview(piece), channel_index(t[a:b], starts[a:b] - starts[a],
+                                                           channels[a:b]), int(t[a]), int(t[b - 1]))
+                a = b
+        self._flush_if_due()
+
     def _topic(self, topic: str) -> Topic:
         try:
             return self.topics[topic]
@@ -307,26 +334,6 @@ class McapBagWriter:
         self._t0, self._t1 = min(self._t0, ch.t0), max(self._t1, ch.t1)
 
     # -- closing -------------------------------------------------------------------------
-    def _metadata(self) -> dict[str, Any]:
-        n = sum(t.count for t in self.topics.values())
-        start = self._t0 if n else 0
-        dur = max(0, self._t1 - self._t0) if n else 0
-        name = self.file.name
-        return {"rosbag2_bagfile_information": {
-            "version": 9, "storage_identifier": "mcap", "relative_file_paths": [name],
-            "duration": {"nanoseconds": dur}, "starting_time": {"nanoseconds_since_epoch": start},
-            "message_count": n,
-            "topics_with_message_count": [
-                {"topic_metadata": {
-                    "name": t.topic, "type": t.msgtype, "serialization_format": "cdr",
-                    "offered_qos_profiles": yaml.safe_load(t.qos_yaml) if t.qos_yaml else [],
-                    "type_description_hash": typestore().hash_rihs01(t.msgtype)},
-                 "message_count": t.count} for t in self.topics.values()],
-            "compression_format": "", "compression_mode": "",
-            "files": [{"path": name, "starting_time": {"nanoseconds_since_epoch": start},
-                       "duration": {"nanoseconds": dur}, "message_count": n}],
-            "custom_data": dict(self.custom_data) or None, "ros_distro": "rosbags"}}
-
     def close(self) -> Path:
         """Finish the file (summary, footer) and ``metadata.yaml``; move the bag into place."""
         with self._flock:
@@ -341,8 +348,9 @@ class McapBagWriter:
 
     def _close(self) -> Path:
         try:
-            meta = self._metadata()
-            text = yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=True)
+            topics = list(self.topics.values())
+            meta = rosbag2_metadata(self.file.name, topics, self._t0, self._t1, self.custom_data)
+            text = yaml.dump(meta["rosbag2_bagfile_information"], **_YAML)
             f = self._f
             meta_start = f.tell()
             f.write(record("metadata", string_field("rosbag2") + map_field(
@@ -357,7 +365,9 @@ class McapBagWriter:
                              ("metadata_index", [record("metadata_index", U64.pack(meta_start)
                                                          + U64.pack(meta_end - meta_start)
                                                          + string_field("rosbag2"))]),
-                             ("statistics", [self._statistics()])):
+                             ("statistics", [statistics_record(
+                                 topics, len(self._schemas), len(self._chunk_indexes), self._t0,
+                                 self._t1)])):
                 at = f.tell()
                 for r in recs:
                     f.write(r)
@@ -370,20 +380,11 @@ class McapBagWriter:
             f.write(record("footer", U64.pack(summary_start) + U64.pack(offsets_start)
                             + U32.pack(0)) + MAGIC)
             f.close()
-            (self._inner / "metadata.yaml").write_text(yaml.safe_dump(meta, sort_keys=True))
+            (self._inner / "metadata.yaml").write_text(yaml.dump(meta, **_YAML))
         except OSError as exc:
             self.abort()
             raise BagError(f"{self.path}: cannot finish bag: {exc}") from None
         return staging.publish(self.path, self.staging, self._inner)
-
-    def _statistics(self) -> bytes:
-        counts = [(t.channel, t.count) for t in self.topics.values()]
-        n = sum(c for _, c in counts)
-        return record("statistics", U64.pack(n) + U16.pack(len(self._schemas))
-                       + U32.pack(len(self.topics)) + U32.pack(0) + U32.pack(1)
-                       + U32.pack(len(self._chunk_indexes))
-                       + U64.pack(self._t0 if n else 0) + U64.pack(self._t1 if n else 0)
-                       + map_field([(U16.pack(c), U64.pack(k)) for c, k in counts]))
 
     def abort(self) -> None:
         """Give up: close the file and remove the staging directory."""
