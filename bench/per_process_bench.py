@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import relay_floor
 from graph_run import env, run_graph
 
 Row = dict[str, Any]
@@ -28,14 +29,14 @@ USER_RUNS = 3
 #: Late + stale samples a per-process run may have (issue 21).
 LATE_MAX = 0.01
 
-#: Why a CPU-per-sample row misses its target (docs/performance.md, "CPU per sample, one process
-#: per node": the perf profile).
-CPU_WHY = ("NOT met: per sample, the hot thread's own Python (decode, guard, answer, loop step, "
-           "encode, the part's recording) is ~60 us in a controller, ~110 in the decoupling, "
-           "~160 in the plant, 3-4x the same code warm in one process (16 us a controller): 7 "
-           "processes share 2 cores and each wake-up finds its caches cold; each wake-up adds "
-           "20-40 us and each message that wakes a reader ~15 us of the writer's CPU (the host "
-           "lanes took the DDS receive thread and 10 us a message off; docs/performance.md)")
+#: Why a CPU-per-sample row misses its target (docs/performance.md, "Where a node's CPU per
+#: sample goes, and the floor of a relay").
+CPU_WHY = ("NOT met: a process that only relays each message costs more than a controller's "
+           "target where its wake-ups cross cores (the relay row below), as the kernel places "
+           "the graph's real-time threads; the rest is the node's Python per sample, 3-4x the "
+           "same code warm in one process (a controller's handler ~45 us against 16 us; the "
+           "plant publishes 5 messages, drains 3 lanes and steps: ~230 us on its hot thread; "
+           "docs/performance.md)")
 #: CPU per sample (us) each node of the per-process graph may spend, recorder per message.
 CPU_TARGETS_US = {"plant_simulator": 100.0, "sensor_decoupling": 60.0, "fb_stage1": 40.0,
                   "fb_stage2": 40.0, "ff_stage1": 40.0, "recorder": 15.0}
@@ -152,7 +153,24 @@ def cpu_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
         rows.append({"name": f"graph: CPU per sample, per process, recording on, {name}",
                      "value": value, "unit": "us", "baseline_name": base_name,
                      "baseline": base_v, "target_max": target, "note": note})
-    return rows
+    return [*rows, relay_row(smoke)]
+
+
+def relay_row(smoke: bool) -> Row:
+    """The floor under the CPU rows (``relay_floor.py``): what a Python process spends per
+    message when it only relays it between two others over FIFOs under SCHED_FIFO, woken by
+    the write, its wake-ups crossing cores (baseline: all three on one core)."""
+    r = relay_floor.placements(0.5 if smoke else 10.0, 0 if smoke else 50)
+    spread, one = r["spread"], r["one core"]
+    return {"name": "graph: the floor of one process per node, a Python relay woken by a FIFO "
+                    "write, CPU per message", "value": spread["relay_us"], "unit": "us",
+            "baseline_name": "the three processes on one core", "baseline": one["relay_us"],
+            "note": f"the relay on one core, the writer (2 kHz, sleeps to each deadline) and the "
+                    f"sink on the other: every wake-up crosses cores; writer "
+                    f"{spread['writer_us']:.0f} us a message ({one['writer_us']:.0f} on one "
+                    f"core), sink {spread['sink_us']:.0f} ({one['sink_us']:.0f}); "
+                    f"{spread['relayed']} messages; SCHED_FIFO "
+                    f"{'granted' if spread['fifo'] else 'not granted'}"}
 
 
 __all__ = ["CPU_TARGETS_US", "late_per_sample", "per_process_rows", "user_run"]
