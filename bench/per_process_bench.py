@@ -31,9 +31,9 @@ LATE_MAX = 0.01
 
 #: Why a CPU-per-sample row misses its target (docs/performance.md, "Where a node's CPU per
 #: sample goes, and the floor of a relay").
-CPU_WHY = ("NOT met: a process that only relays each message costs more than a controller's "
-           "target where its wake-ups cross cores (the relay row below), as the kernel places "
-           "the graph's real-time threads; the rest is the node's Python per sample, 3-4x the "
+CPU_WHY = ("NOT met: a process that only relays each message, woken across cores as the "
+           "kernel places the graph's real-time threads, costs about a controller's whole "
+           "target (the relay row below); the rest is the node's Python per sample, 3-4x the "
            "same code warm in one process (a controller's handler ~45 us against 16 us; the "
            "plant publishes 5 messages, drains 3 lanes and steps: ~230 us on its hot thread; "
            "docs/performance.md)")
