@@ -61,18 +61,24 @@ def test_one_process_per_node_uses_lanes_and_dds_only_for_a_reader_without_one(c
     assert up.returncode == 0, out
     lines = _lane_lines(logs)
     samples = int(seconds * rate)
-    # the plant publishes every sample; the decoupling answers the newest raw sample of a
-    # wake-up (it steps through all), a controller each velocity it gets
+    # the plant publishes every sample
     for topic in (topics.DEFAULT.sensors_raw, topics.DEFAULT.actuators_applied):
         assert lines[topic] == (samples, 0, 0), (topic, lines)
-    for topic in (topics.DEFAULT.velocity("stage2"), topics.DEFAULT.velocity("ground"),
-                  *(topics.DEFAULT.force(c) for c in ("fb_stage1", "fb_stage2", "ff_stage1"))):
+    # the decoupling answers the newest raw sample of a wake-up (it steps through all), so
+    # how many it publishes is the host's speed, not the lanes' (a slow host's CI run without
+    # SCHED_FIFO: 2,457 of 6,000, 49 % of the samples late): every velocity topic carries
+    # the same answers, on lanes only where no reader lacks a lane
+    answers = lines[topics.DEFAULT.velocity("ground")][0]
+    assert answers >= samples // 10, lines  # a run, not a start-up that never got going
+    assert lines[topics.DEFAULT.velocity("ground")] == (answers, 0, 0), lines
+    assert lines[topics.DEFAULT.velocity("stage2")] == (answers, 0, 0), lines
+    for topic in (topics.DEFAULT.force(c) for c in ("fb_stage1", "fb_stage2", "ff_stage1")):
         on_lanes, on_dds, lost = lines[topic]
-        assert on_lanes >= samples // 2 and on_dds == 0 and lost == 0, (topic, lines)
+        assert on_lanes >= answers // 10 and on_dds == 0 and lost == 0, (topic, lines)
     on_lanes, on_dds, lost = lines[topics.DEFAULT.velocity("stage1")]
     # the probe has no lane: DDS from the writer's match with it on (the graph, which the
     # plant waits for, may show it earlier)
-    assert on_lanes >= samples // 2 and on_dds >= samples // 4 and lost == 0, lines
+    assert on_lanes == answers and on_dds >= answers // 2 and lost == 0, lines
     assert len(stamps) == len(set(stamps)) >= 0.9 * on_dds, len(stamps)  # best effort
 
 
