@@ -47,7 +47,14 @@ from rclpy.subscription import Subscription
 from dcsms_ros.protocols.localbus import Endpoint, Inbox, LocalBus
 from dcsms_ros.ros.callbackgroups import DetachedGroup
 from dcsms_ros.ros.hostlane import LaneReader
-from dcsms_ros.ros.hotloop import GIL_SWITCH_S, IDLE_S, DrivenContext, HotLoop, enabled
+from dcsms_ros.ros.hotloop import (
+    GIL_SWITCH_S,
+    IDLE_S,
+    DrivenContext,
+    HostedContext,
+    HotLoop,
+    enabled,
+)
 from dcsms_ros.ros.intraprocess import BusPublisher, DirectPublisher, HotPublisher
 from dcsms_ros.ros.laneinput import lanes_for
 
@@ -316,10 +323,13 @@ class HotPath:
     def start(self) -> None:
         """Serve the subscriptions: by this process's driver loop if the node's context is
         a :class:`DrivenContext` (composed), else by a thread of its own (no-op when off, when
-        already started, or without subscriptions and tick)."""
+        already started, without subscriptions and tick, or while a :class:`HostedContext`
+        is held: its host starts the loop)."""
         if not self.on or self.loop is not None or not (self.subs or self._tick):
             return
         context = self.node.context
+        if isinstance(context, HostedContext) and context.held:
+            return
         if isinstance(context, DrivenContext):
             self.loop = context.driver
             context.driver.add(self)

@@ -48,7 +48,7 @@ from dcsms_ros.ros.context import (
 from dcsms_ros.ros.executor import HostExecutor
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import Hosted, hot_path
-from dcsms_ros.ros.hotloop import settle_heap
+from dcsms_ros.ros.hotloop import HostedContext, settle_heap
 from dcsms_ros.ros.housekeeping import Housekeeper
 from dcsms_ros.ros.serialized import Serialized, hot_lock, serialize
 
@@ -116,6 +116,8 @@ def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
     if isinstance(node, Hosted):
         node.host_wake = wake
     hot = hot_path(node)
+    if isinstance(node.context, HostedContext):
+        node.context.held = False  # what runs beside the node is attached by now
     if hot is not None:
         settle_heap()
         hot.start()
@@ -234,7 +236,7 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
     """
     rt_priority, rt_warning = rt_priority_from_env()
     status = 0
-    with ros_context(args, signals=True) as ros:
+    with ros_context(args, signals=True, context=HostedContext()) as ros:
         node: Node | None = None
         extra: Attachment | None = None
         ran = False

@@ -276,6 +276,59 @@ def test_an_attachment_is_finished_before_the_node_is_destroyed(domain: int) -> 
     assert out.returncode != 0 and "teardown failed" in out.stderr
 
 
+#: A node process whose hot path ticks from its constructor's ``start()`` on, and an
+#: attachment that takes 0.3 s to observe it (as a recorded run's part opens its bag): it
+#: prints the ticks it saw at its attachment and at its finish.
+ATTACHED_FIRST = r"""
+import os, signal, sys, time
+from rclpy.node import Node
+from dcsms_ros.ros.hosted import Hosted
+from dcsms_ros.ros.hotpath import HotPath
+from dcsms_ros.ros.runtime import run
+
+class Ticking(Hosted, Node):
+    def __init__(self, context):
+        super().__init__("ticking", context=context)
+        self.ticks = 0
+        self.hot = HotPath(self)
+        self.hot.set_tick(self._tick)
+        self.hot.start()
+
+    def _tick(self):
+        self.ticks += 1
+        if self.ticks == 5:
+            os.kill(os.getpid(), signal.SIGINT)
+        return 0.01
+
+class Part:
+    def __init__(self, node):
+        self.node = node
+        time.sleep(0.3)
+        print("attached", node.ticks, flush=True)
+
+    def finish(self):
+        print("finished", self.node.ticks, flush=True)
+
+    def abort(self):
+        print("abort", flush=True)
+
+sys.exit(run(Ticking, ["x"], Part))
+"""
+
+
+def test_a_node_process_starts_its_hot_loop_once_its_attachment_observes_it(
+        domain: int) -> None:
+    """A node's constructor asks its hot path to start; under the host (one node per process)
+    the loop starts only once the attachment exists, so a recorded run's part sees the node's
+    first publication (a controller answered 58 samples before its part observed it)."""
+    out = subprocess.run([sys.executable, "-c", ATTACHED_FIRST], capture_output=True,
+                         text=True, timeout=60, check=False)
+    lines = out.stdout.split("\n")
+    assert lines[0] == "attached 0", out.stdout + out.stderr[-2000:]
+    assert lines[1].startswith("finished") and int(lines[1].split()[1]) >= 5, out.stdout
+    assert out.returncode == 0, out.stderr[-2000:]
+
+
 #: A node process whose spin loop would poll once a minute: a stop signal, or the node's own
 #: finish from another thread (``finish``), must wake it; it prints when it spins.
 WOKEN = r"""
