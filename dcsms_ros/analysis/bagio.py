@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import shutil
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Literal
@@ -120,6 +120,11 @@ class BagWriter:
                 raise BagError(f"{self.path}: written after close")
             self._writer.write(conn, int(t_ns), cdr)
             self.counts[topic] += 1
+
+    def write_all(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
+        """Write messages ``(topic, t_ns, cdr)`` in their order (a recorder's batch)."""
+        for topic, t_ns, cdr in messages:
+            self.write(topic, t_ns, cdr)
 
     def write_many(self, topic: str, t_ns: Any, buffers: list[bytes]) -> None:
         """Write K messages of one topic; ``t_ns`` is an int array (K,) of log times in ns."""

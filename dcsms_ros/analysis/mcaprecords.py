@@ -9,7 +9,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import yaml
@@ -197,6 +197,25 @@ def message_records(t_ns: np.ndarray, channels: np.ndarray, payload: np.ndarray,
     return out, starts
 
 
+def write_summary(f: BinaryIO, sections: Sequence[tuple[str, Sequence[bytes]]]) -> None:
+    """End the data section of file ``f`` and write the summary: each section's records
+    (``(opcode name, records)``, in file order), a summary offset per non-empty section and
+    the footer with the magic."""
+    f.write(record("data_end", U32.pack(0)))
+    groups = []
+    summary_start = f.tell()
+    for op, recs in sections:
+        at = f.tell()
+        f.writelines(recs)
+        if recs:
+            groups.append((op, at, f.tell() - at))
+    offsets_start = f.tell()
+    for op, at, length in groups:
+        f.write(record("summary_offset", bytes([OPCODES[op]]) + U64.pack(at) + U64.pack(length)))
+    f.write(record("footer", U64.pack(summary_start) + U64.pack(offsets_start) + U32.pack(0))
+            + MAGIC)
+
+
 __all__ = ["MAGIC", "MESSAGE", "MESSAGE_DTYPE", "MESSAGE_HEADER", "OPCODES", "U16", "U32", "U64",
            "RowTemplate", "Topic", "channel_index", "copy_ranges", "map_field", "message_records",
-           "record", "rosbag2_metadata", "statistics_record", "string_field"]
+           "record", "rosbag2_metadata", "statistics_record", "string_field", "write_summary"]

@@ -22,7 +22,7 @@ import shutil
 import threading
 import time
 from array import array
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,9 +36,7 @@ from dcsms_ros.analysis.mcaprecords import (
     MAGIC,
     MESSAGE,
     MESSAGE_HEADER,
-    OPCODES,
     U16,
-    U32,
     U64,
     RowTemplate,
     Topic,
@@ -48,6 +46,7 @@ from dcsms_ros.analysis.mcaprecords import (
     rosbag2_metadata,
     statistics_record,
     string_field,
+    write_summary,
 )
 from dcsms_ros.cdr import typestore
 from dcsms_ros.errors import BagError
@@ -174,32 +173,40 @@ class McapBagWriter:
         BagError
             After :meth:`close` (a write in another thread ends first).
         """
+        self.write_all(((topic, t_ns, data),))
+
+    def write_all(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
+        """Messages ``(topic, t_ns, data)`` in their order, under one hold of the lock (a
+        recorder's batch: a composed process's observers, ``LocalBus``). Raises as
+        :meth:`write`."""
         with self._lock:
             if self._closed:
                 raise BagError(f"{self.path}: written after close")
-            self._write(topic, t_ns, data)
+            self._write(messages)
         self._flush_if_due()
 
-    def _write(self, topic: str, t_ns: int, data: bytes) -> None:
+    def _write(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
         # a recorder's per-message path (~1.2 us): one struct pack, two bytearray appends,
         # index entries into an array('Q'), no numpy call per message
-        t = self._topic(topic)
-        t_ns = int(t_ns)
+        topics, limit = self.topics, self.chunk_bytes
         ch = self._chunk
-        size = len(ch.data)
-        if size and size + MESSAGE_HEADER + len(data) > self.chunk_bytes:
-            self._close_chunk()
-            ch, size = self._chunk, 0
-        single = ch.singles.get(t.channel)
-        if single is None:
-            single = ch.singles[t.channel] = array("Q")
-        single.append(t_ns)
-        single.append(size)
-        ch.data += MESSAGE.pack(0x05, 22 + len(data), t.channel, 0, t_ns, t_ns)
-        ch.data += data
-        ch.t0 = min(ch.t0, t_ns)
-        ch.t1 = max(ch.t1, t_ns)
-        t.count += 1
+        for topic, log_ns, data in messages:
+            t = topics.get(topic) or self._topic(topic)
+            t_ns = int(log_ns)
+            size = len(ch.data)
+            if size and size + MESSAGE_HEADER + len(data) > limit:
+                self._close_chunk()
+                ch, size = self._chunk, 0
+            single = ch.singles.get(t.channel)
+            if single is None:
+                single = ch.singles[t.channel] = array("Q")
+            single.append(t_ns)
+            single.append(size)
+            ch.data += MESSAGE.pack(0x05, 22 + len(data), t.channel, 0, t_ns, t_ns)
+            ch.data += data
+            ch.t0 = min(ch.t0, t_ns)
+            ch.t1 = max(ch.t1, t_ns)
+            t.count += 1
 
     def rows_template(self, topics: Sequence[str],
                       templates: Sequence[np.ndarray]) -> RowTemplate:
@@ -356,29 +363,16 @@ class McapBagWriter:
             f.write(record("metadata", string_field("rosbag2") + map_field(
                 [(string_field("serialized_metadata"), string_field(text.strip()))])))
             meta_end = f.tell()
-            f.write(record("data_end", U32.pack(0)))
-            groups = []
-            summary_start = f.tell()
-            for op, recs in (("schema", [r for _, r in self._schemas.values()]),
-                             ("channel", [self._channel_record(t) for t in self.topics.values()]),
-                             ("chunk_index", self._chunk_indexes),
-                             ("metadata_index", [record("metadata_index", U64.pack(meta_start)
-                                                         + U64.pack(meta_end - meta_start)
-                                                         + string_field("rosbag2"))]),
-                             ("statistics", [statistics_record(
-                                 topics, len(self._schemas), len(self._chunk_indexes), self._t0,
-                                 self._t1)])):
-                at = f.tell()
-                for r in recs:
-                    f.write(r)
-                if recs:
-                    groups.append((op, at, f.tell() - at))
-            offsets_start = f.tell()
-            for op, at, length in groups:
-                f.write(record("summary_offset", bytes([OPCODES[op]]) + U64.pack(at)
-                                + U64.pack(length)))
-            f.write(record("footer", U64.pack(summary_start) + U64.pack(offsets_start)
-                            + U32.pack(0)) + MAGIC)
+            write_summary(f, [
+                ("schema", [r for _, r in self._schemas.values()]),
+                ("channel", [self._channel_record(t) for t in self.topics.values()]),
+                ("chunk_index", self._chunk_indexes),
+                ("metadata_index", [record("metadata_index", U64.pack(meta_start)
+                                           + U64.pack(meta_end - meta_start)
+                                           + string_field("rosbag2"))]),
+                ("statistics", [statistics_record(topics, len(self._schemas),
+                                                  len(self._chunk_indexes), self._t0,
+                                                  self._t1)])])
             f.close()
             (self._inner / "metadata.yaml").write_text(yaml.dump(meta, **_YAML))
         except OSError as exc:

@@ -38,20 +38,20 @@ sqlite3), ``queue_depth`` (4000), ``duration_s`` (0 = until a signal), ``report_
 from __future__ import annotations
 
 import fnmatch
-import importlib
 import sys
 import time
 from collections.abc import Sequence
 from typing import Any
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from dcsms_ros.analysis.bagio import BagWriter
 from dcsms_ros.analysis.gaps import PUBLISHED_KEY, Recording, TopicStats, published_json
 from dcsms_ros.analysis.mcapwrite import McapBagWriter
-from dcsms_ros.cdr import CLOCK, read_stamp
+from dcsms_ros.cdr import read_stamp
 from dcsms_ros.errors import BagError, DcsmsError
+from dcsms_ros.nodes.recorder_topics import is_stamped, msg_class, qos_yaml, subscription_qos
+from dcsms_ros.protocols.localbus import Sink
 from dcsms_ros.ros.callbackgroups import DetachedGroup
 from dcsms_ros.ros.connectivity import has_reader
 from dcsms_ros.ros.context import STOP_EXCEPTIONS, ros_context, spin_until
@@ -76,52 +76,6 @@ DEFAULT_DEPTH = 4000
 FLUSH_PERIOD_S = 0.25
 #: Messages one callback takes from its subscription's queue at most (fairness bound).
 GREEDY = 256
-_INF_NS = 2**63 - 1
-
-
-def _msg_class(msgtype: str) -> Any:
-    """The generated Python class of ``pkg/msg/Name``."""
-    pkg, _, name = msgtype.split("/")
-    return getattr(importlib.import_module(f"{pkg}.msg"), name)
-
-
-def _stamped(cls: Any, msgtype: str) -> bool:
-    """True if the first 8 bytes of the body are a stamp (header types and Clock)."""
-    if msgtype == CLOCK:
-        return True
-    fields = list(cls.get_fields_and_field_types().items())
-    return bool(fields) and fields[0] == ("header", "std_msgs/Header")
-
-
-def _dur(ns: int) -> str:
-    ns = min(int(ns), _INF_NS)
-    return f"{{sec: {ns // 1_000_000_000}, nsec: {ns % 1_000_000_000}}}"
-
-
-def qos_yaml(profiles: Sequence[Any]) -> str:
-    """Offered QoS profiles (rclpy ``QoSProfile``) as rosbag2 v9 metadata YAML, one per
-    publisher, as ``ros2 bag record`` writes them."""
-    out = [f"- history: {q.history.name.lower()}\n  depth: {int(q.depth)}\n"
-           f"  reliability: {q.reliability.name.lower()}\n"
-           f"  durability: {q.durability.name.lower()}\n"
-           f"  deadline: {_dur(q.deadline.nanoseconds)}\n"
-           f"  lifespan: {_dur(q.lifespan.nanoseconds)}\n"
-           f"  liveliness: {q.liveliness.name.lower()}\n"
-           f"  liveliness_lease_duration: {_dur(q.liveliness_lease_duration.nanoseconds)}"
-           f"\n  avoid_ros_namespace_conventions: "
-           f"{str(bool(q.avoid_ros_namespace_conventions)).lower()}\n"
-           for q in profiles]
-    return "".join(out)
-
-
-def subscription_qos(profiles: Sequence[Any], depth: int) -> QoSProfile:
-    """The QoS that matches every offered profile (rosbag2's rule), keep-last ``depth``."""
-    reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in profiles)
-    latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in profiles)
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=depth,
-        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
 class Recorder(GraphNode):
@@ -168,6 +122,8 @@ class Recorder(GraphNode):
         # BagWriter); each topic's counters are written by one of them only
         ctx = self.context
         self.bus = ctx.bus if isinstance(ctx, DrivenContext) else None
+        #: the topics written in this process, taken from the bus in batches
+        self._sink = Sink(self._write_batch)
         self._open = True
         self._t_start = time.monotonic()
         self._reported = (0, self._t_start, 0)
@@ -209,12 +165,12 @@ class Recorder(GraphNode):
 
     def _subscribe(self, topic: str, msgtype: str, offered: list[Any]) -> None:
         try:
-            cls = _msg_class(msgtype)
+            cls = msg_class(msgtype)
             self.writer.add_topic(topic, msgtype, qos_yaml(offered))
         except (ImportError, AttributeError, ValueError, BagError) as exc:
             self._skip(topic, str(exc))
             return
-        st = TopicStats(topic, msgtype, _stamped(cls, msgtype), checked=len(offered) <= 1,
+        st = TopicStats(topic, msgtype, is_stamped(cls, msgtype), checked=len(offered) <= 1,
                         publishers=lambda: self.count_publishers(topic))
         self.stats[topic] = st
         qos = subscription_qos(offered, self.depth)
@@ -222,7 +178,7 @@ class Recorder(GraphNode):
         local = self.bus is not None and self.bus.has_publisher(topic)
         if self.bus is not None and local:
             # before the DDS reader exists: the writers' first-sample gate waits for that
-            self.bus.observe(topic, self._observer(topic, st))
+            self.bus.observe(topic, self._sink, (topic, st))
             self.bus.add_reader(topic)
             # never read: keep-last 1 holds the DDS copies a remote reader causes
             holder.append(self.create_subscription(cls, topic, lambda m: None,
@@ -236,20 +192,17 @@ class Recorder(GraphNode):
             f"recording {topic} [{msgtype}] ({qos.reliability.name.lower()}, "
             f"{qos.durability.name.lower()}{', in process' if local else ''})")
 
-    def _observer(self, topic: str, st: TopicStats) -> Any:
-        """The bus observer of a topic written in this process: ``cb(data, seq, t_ns)``."""
-        write, add, stamped = self.writer.write, st.add, st.stamped
-
-        def cb(data: bytes, seq: int, t_ns: int) -> None:
-            if not self._open:  # published after the bag was closed
-                return
-            try:
-                write(topic, t_ns, data)
-            except BagError:  # closed between the check and the write, by the executor
-                return
-            add(seq, read_stamp(data) if stamped else None, t_ns)
-
-        return cb
+    def _write_batch(self, batch: list[tuple[Any, bytes, int, int]]) -> None:
+        """The bus's messages of topics written in this process, ``(tag, data, seq, t_ns)``
+        in publication order, ``tag`` the topic and its :class:`TopicStats`."""
+        if not self._open:  # published after the bag was closed
+            return
+        try:
+            self.writer.write_all([(tag[0], t_ns, data) for tag, data, _, t_ns in batch])
+        except BagError:  # closed between the check and the write, by the executor
+            return
+        for (_, st), data, seq, t_ns in batch:
+            st.add(seq, read_stamp(data) if st.stamped else None, t_ns)
 
     def _callback(self, topic: str, st: TopicStats, holder: list[Any]) -> Any:
         """A raw callback with message info, ``cb(cdr_bytes, info)`` (rclpy passes ``info``

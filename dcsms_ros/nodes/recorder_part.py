@@ -32,7 +32,7 @@ from dcsms_ros.analysis.gaps import PUBLISHED_KEY
 from dcsms_ros.analysis.mcapwrite import McapBagWriter
 from dcsms_ros.errors import BagError, DcsmsError
 from dcsms_ros.graph import RECORD_PART_ENV, RECORD_TOPICS_ENV
-from dcsms_ros.nodes.recorder import qos_yaml
+from dcsms_ros.nodes.recorder_topics import qos_yaml
 from dcsms_ros.ros.callbackgroups import UnlockedGroup
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import hot_path

@@ -44,6 +44,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile
 from rclpy.subscription import Subscription
 
+from dcsms_ros.protocols.afterlock import AfterLock
 from dcsms_ros.protocols.localbus import Endpoint, Inbox, LocalBus
 from dcsms_ros.ros.callbackgroups import DetachedGroup
 from dcsms_ros.ros.hostlane import LaneReader
@@ -103,31 +104,11 @@ class HotPath:
         self._flush: dict[Subscription, Callable[[], None] | None] = {}
         self._asked: dict[Subscription, tuple[Any, str, Callable[[Any], None], QoSProfile]] = {}
         self._replaced: dict[Subscription, Subscription] = {}
-        #: what :meth:`after` queued while the host holds the lock for an executor callback
-        self._deferred: list[Callable[[], None]] | None = None
+        #: what an executor callback sends once the host released the lock (reports)
+        self.later = AfterLock()
         #: One process per node: per-sample messages between processes of this host go on
         #: lanes (:mod:`.hostlane`), DDS only for the others.
         self.lanes = lanes_for(node) if self.on and self.bus is None else None
-
-    def after(self, fn: Callable[[], None]) -> None:
-        """Run ``fn()`` once the executor callback in progress has released the lock (the
-        host's :mod:`.serialized` wrapper runs it), or at once anywhere else (a hot handler, a
-        final report). ``fn`` runs beside the hot loop, so it must not touch the node's state:
-        give it values read under the lock (a report's message building and publication)."""
-        if self._deferred is not None:
-            self._deferred.append(fn)
-        else:
-            fn()
-
-    def defer(self) -> None:
-        """The host, holding the lock for an executor callback: queue what :meth:`after` gets."""
-        self._deferred = []
-
-    def deferred(self) -> list[Callable[[], None]]:
-        """The host, still holding the lock: what :meth:`after` queued since :meth:`defer`
-        (for the host to run once it released the lock); stop queueing."""
-        out, self._deferred = self._deferred or [], None
-        return out
 
     @property
     def error(self) -> BaseException | None:

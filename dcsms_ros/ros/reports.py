@@ -5,9 +5,10 @@ and hands them to :meth:`Reports.publish` as plain values. Building the Diagnost
 publishing it costs ~0.2-1 ms of Python, and in the executor's thread, which runs under the
 normal scheduler, another process may preempt it for milliseconds; under the lock, the
 SCHED_FIFO hot thread waited that long (controllers: 3.5-35 ms longest holds per 20 s run).
-So the building and the publication go through :meth:`.HotPath.after`. A report read earlier
-than one already published (the hot loop reports at once, the executor's report waits for the
-lock's release) is dropped: readers see the counters in the order they were read.
+So the building and the publication go through the hot path's ``later.after``
+(:mod:`dcsms_ros.protocols.afterlock`). A report read earlier than one already published
+(the hot loop reports at once, the executor's report waits for the lock's release) is
+dropped: readers see the counters in the order they were read.
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ class Reports:
     node : Node
         The reporting node (its full name names the statuses).
     hot : HotPath
-        Its hot path (:meth:`~.HotPath.after` defers the publication).
+        Its hot path (its ``later.after`` defers the publication).
     """
 
     def __init__(self, node: Node, hot: HotPath) -> None:
@@ -60,7 +61,7 @@ class Reports:
         progress released the lock. Call under the hot lock (as every node callback runs)."""
         self._read += 1
         seq = self._read
-        self.hot.after(lambda: self._send(seq, stamp_ns, statuses))
+        self.hot.later.after(lambda: self._send(seq, stamp_ns, statuses))
 
     def _send(self, seq: int, stamp_ns: int, statuses: Sequence[Status]) -> None:
         arr = DiagnosticArray()

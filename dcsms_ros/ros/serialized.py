@@ -16,7 +16,7 @@ the node (the one-shot timers of :mod:`.services`) touch only their own futures.
 
 Each wrapper records the longest time it held the lock (:attr:`Serialized.longest_s`): a
 callback that holds it long delays the node's next sample by as much. What a callback hands to
-:meth:`.HotPath.after` (a report's message building and publication) runs after the lock is
+``HotPath.later.after`` (a report's message building and publication) runs after the lock is
 released: the executor's thread runs under the normal scheduler, and the longer it holds the
 lock the likelier another process preempts it there, with the SCHED_FIFO hot thread waiting.
 """
@@ -62,8 +62,8 @@ class Serialized:
     lock : threading.Lock or RLock
         The node's hot-path lock.
     hot : HotPath, optional
-        The node's hot path: what a callback hands to its :meth:`~.HotPath.after` runs once the
-        lock is released.
+        The node's hot path: what a callback hands to its ``later.after``
+        (:class:`~dcsms_ros.protocols.afterlock.AfterLock`) runs once the lock is released.
     """
 
     def __init__(self, lock: Any, hot: HotPath | None = None) -> None:
@@ -77,17 +77,17 @@ class Serialized:
     @contextmanager
     def held(self, name: str) -> Generator[None, None, None]:
         """Hold the lock for the ``with`` block (records how long), then run what the block
-        handed to :meth:`.HotPath.after`."""
+        handed to the hot path's ``later.after``."""
         later: list[Callable[[], None]] = []
         with self.lock:
             t0 = time.perf_counter()
             if self.hot is not None:
-                self.hot.defer()
+                self.hot.later.hold()
             try:
                 yield
             finally:
                 if self.hot is not None:
-                    later = self.hot.deferred()
+                    later = self.hot.later.release()
                 dt = time.perf_counter() - t0
                 self.calls += 1
                 if dt > self.longest_s:

@@ -202,7 +202,7 @@ class Reporter(Node, Hosted):
     def _report(self) -> None:
         self.reports.publish(self.count, [Status(DiagnosticStatus.OK, "ok",
                                                  {"count": self.count})])
-        self.hot.after(self._note_lock)
+        self.hot.later.after(self._note_lock)
 
     def _note_lock(self) -> None:
         # whether this thread holds the (reentrant) lock; another thread may hold it meanwhile
@@ -210,7 +210,7 @@ class Reporter(Node, Hosted):
 
 
 def test_reports_go_out_after_the_lock_and_in_order(ctx) -> None:
-    """What a timer hands to `HotPath.after` runs once the host released the hot lock; the hot
+    """What a timer hands to `HotPath.later.after` runs once the host released the hot lock; the hot
     handler's runs at once (under it). The reports a reader receives never go back: a report
     read before one already published is dropped, not sent late."""
     node = Reporter(context=ctx)

@@ -3,10 +3,17 @@
 from __future__ import annotations
 
 import threading
+from typing import Any
 
 import pytest
 
-from dcsms_ros.protocols.localbus import MATCH_REFRESH_NS, HeldHistory, LocalBus, MatchCount
+from dcsms_ros.protocols.localbus import (
+    MATCH_REFRESH_NS,
+    HeldHistory,
+    LocalBus,
+    MatchCount,
+    Sink,
+)
 
 
 class Ticks:
@@ -66,18 +73,30 @@ def test_lockstep_cycle_is_delivered_in_publication_order_without_recursion() ->
 @pytest.mark.parametrize("batch", [1, 5, 64])
 def test_observers_get_every_message_once_in_order_after_the_control_path(
         batch: int, per_topic: int) -> None:
-    """Each observer of every topic (one, the recorder, or two) sees each message once, with
-    its writer's sequence number 1, 2, ... and its publication time; at most ``batch``
-    deliveries wait behind handlers."""
+    """Each sink observing every topic (one, the recorder, or two) sees each message once, with
+    its writer's sequence number 1, 2, ... and its publication time, in publication order
+    across its topics, a batch per call; at most ``batch`` deliveries wait behind handlers."""
     clock = Ticks()
     bus = LocalBus(clock=clock, observer_batch=batch)
     log: list[tuple[str, bytes]] = []
     seen: dict[tuple[str, int], list[tuple[bytes, int, int]]] = {}
+    order: dict[int, list[int]] = {}
+    calls: dict[int, int] = {}
     waiting: list[int] = []
     topics = ("/raw", "/vel", "/force/a", "/force/b")
+
+    def sink_of(i: int) -> Sink:
+        def take(items: list[tuple[Any, bytes, int, int]]) -> None:
+            calls[i] = calls.get(i, 0) + 1
+            for tag, d, s, ns in items:
+                seen.setdefault((tag, i), []).append((d, s, ns))
+                order.setdefault(i, []).append(ns)
+        return Sink(take)
+
+    sinks = [sink_of(i) for i in range(per_topic)]
     for t in topics:
         for i in range(per_topic):
-            bus.observe(t, lambda d, s, ns, k=(t, i): seen.setdefault(k, []).append((d, s, ns)))
+            bus.observe(t, sinks[i], t)
     _cycle(bus, 200, log)
     bus.subscribe("/raw", lambda d: waiting.append(bus.backlog))
     while bus.pending:
@@ -88,6 +107,11 @@ def test_observers_get_every_message_once_in_order_after_the_control_path(
         assert [s for _, s, _ in got] == list(range(1, 201)), k
         stamps = [ns for _, _, ns in got]
         assert stamps == sorted(stamps) and len(set(stamps)) == 200
+    for i, sink in enumerate(sinks):
+        assert order[i] == sorted(order[i]) and sink.delivered == 800  # publication order
+        # one call per batch (the cycle runs in one dispatch): a call each time ``batch``
+        # deliveries of all sinks wait, and one for the rest
+        assert calls[i] <= -(-800 * per_topic // batch) + 1
     assert max(waiting) < batch  # a full batch is served before the next handler runs
 
 
@@ -176,7 +200,7 @@ def test_handlers_run_under_their_lock() -> None:
     bus = LocalBus()
     w = bus.advertise("/t")
     bus.subscribe("/t", lambda d: held.append(lock.locked()), lock)
-    bus.observe("/t", lambda d, s, t: held.append(lock.locked()), lock)
+    bus.observe("/t", Sink(lambda items: held.append(lock.locked()), lock))
     w.publish(b"x")
     bus.dispatch()
     assert held == [True, True] and not lock.locked()
@@ -191,7 +215,7 @@ def test_close_settles_the_queue_on_inboxes_and_observers_only() -> None:
     seen: list[bytes] = []
     bus.subscribe("/t", calls.append)
     box = bus.inbox("/t")
-    bus.observe("/t", lambda d, s, t: seen.append(d))
+    bus.observe("/t", Sink(lambda items: seen.extend(d for _, d, _, _ in items)))
     w.publish(b"1")
     assert bus.close() == 1
     w.publish(b"2")
@@ -236,7 +260,7 @@ def test_latest_only_handler_skips_what_a_newer_message_replaces() -> None:
     seen: list[bytes] = []
     ep = bus.subscribe("/raw", newest.append, latest_only=True)
     bus.subscribe("/raw", every.append)
-    bus.observe("/raw", lambda d, s, t: seen.append(d))
+    bus.observe("/raw", Sink(lambda items: seen.extend(d for _, d, _, _ in items)))
     for k in range(5):
         w.publish(b"%d" % k)
     bus.dispatch()
