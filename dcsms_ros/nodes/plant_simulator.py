@@ -269,8 +269,10 @@ class PlantSimulatorNode(GraphNode, Hosted):
 
     def _realtime(self, now: float) -> None:
         for _ in range(self.pacer.due(now, self.sim.k)):
-            self.io.publish_sample(self.sim.k)
-            wrenches, newly = self.held.take(now)
+            k = self.sim.k
+            self.io.publish_sample(k)
+            # the force of sample k - 1 is the newest one that can be here: older is delayed
+            wrenches, newly = self.held.take(now, self.io.published_s(k - 1))
             for c in newly:
                 self.io.went_stale(c)
             self._advance(wrenches)

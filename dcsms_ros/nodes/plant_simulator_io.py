@@ -17,6 +17,7 @@ writers matched every reader, then :data:`SETTLE_S` more; or after
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -250,6 +251,11 @@ class PlantIO:
             self._lat[cid].append(now_ns - self._t_pub[k])
         return now_ns
 
+    def published_s(self, k: int) -> float:
+        """Monotonic s of sample ``k``'s publication (the unit and value
+        :meth:`sample_time` gives its answers, in s); -inf before sample 0."""
+        return self._ring[k % RING] * 1e-9 if k >= 0 else -math.inf
+
     def sample_time(self, stamp: int, now_ns: int) -> int:
         """Monotonic ns the force stamped ``stamp`` counts from (real time): the publication of
         the sample it answers, so its age is the delay it adds to the loop. Table1's stage-2
@@ -319,6 +325,7 @@ class PlantIO:
                   "lockstep_timeouts": sum(b.faults.values()), "retransmits": b.retransmits,
                   "stale_events": sum(nd.held.stale_events.values()),
                   "stale_samples": sum(nd.held.stale_samples.values()),
+                  "delayed_samples": sum(nd.held.delayed_samples.values()),
                   "controllers": len(nd.controllers),
                   "latency_p50_ms": f"{self.latency_hist.quantile(0.5) * 1e3:.4f}",
                   "latency_p99_ms": f"{self.latency_hist.quantile(0.99) * 1e3:.4f}",

@@ -84,6 +84,9 @@ class HeldInputs:
         self.stale_events = dict.fromkeys(self.names, 0)
         #: samples taken with this input stale after it first arrived (before: start-up)
         self.stale_samples = dict.fromkeys(self.names, 0)
+        #: samples taken with this input fresh but counting from before ``due`` (:meth:`take`):
+        #: the loop ran with more delay than its nominal one
+        self.delayed_samples = dict.fromkeys(self.names, 0)
 
     def put(self, name: str, value: Any, t: float) -> None:
         """Input ``name`` got ``value``, valid from ``t`` (s); an older one than the value held
@@ -96,8 +99,12 @@ class HeldInputs:
         the sample its force answers), -inf if never."""
         return self._held.get(name, (None, -math.inf))[1]
 
-    def take(self, now: float) -> tuple[dict[str, Any], list[str]]:
-        """The values to use at ``now`` (s), and the inputs that have just gone stale."""
+    def take(self, now: float, due: float = -math.inf) -> tuple[dict[str, Any], list[str]]:
+        """The values to use at ``now`` (s), and the inputs that have just gone stale.
+        ``due`` (s): the time the newest value that could be held by now counts from (the
+        plant's: the publication of the previous sample); a fresh value that counts from
+        before it (its answer was skipped or came late) is counted in
+        :attr:`delayed_samples`."""
         out: dict[str, Any] = {}
         newly = []
         for n in self.names:
@@ -105,6 +112,8 @@ class HeldInputs:
             stale = now - t > self.timeout_s
             if stale and t > -math.inf:
                 self.stale_samples[n] += 1
+            elif not stale and t < due:
+                self.delayed_samples[n] += 1
             if stale and not self.stale[n]:
                 self.stale_events[n] += 1
                 newly.append(n)

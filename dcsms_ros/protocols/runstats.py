@@ -99,6 +99,14 @@ class RunSummary:
         Of ``late``, the deadlines dropped from a backlog (real time: the plant fell more
         than a burst behind and moved its schedule on); they passed without a sample, so
         they count in the deadlines of :attr:`late_fraction` too.
+    delayed : int
+        Real time: samples x controllers at which the plant applied a fresh force that
+        answered an older sample than the previous one (the controller skipped that sample
+        under load, keep-last 1, or its answer came after the next sample): the loop ran with
+        at least one sample more delay than its nominal one. Neither ``stale`` (older than
+        ``control.input_timeout_s``) nor the latency quantiles (of forces that arrived) show
+        it. 0 in lockstep. Kept out of :meth:`line`, whose fields are fixed; in
+        :meth:`to_dict`.
     """
 
     samples: int
@@ -112,6 +120,7 @@ class RunSummary:
     published: int | None = None
     forces: int = 0
     overruns: int = 0
+    delayed: int = 0
 
     @property
     def late_fraction(self) -> float:
@@ -220,7 +229,8 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
                       latency_p99_s=num("latency_p99_ms") * 1e-3,
                       recorded=recorded, samples_x_streams=scale,
                       lockstep=plant.get("schedule", "lockstep") == "lockstep",
-                      published=sent, overruns=int(plant.get("overruns", "0")))
+                      published=sent, overruns=int(plant.get("overruns", "0")),
+                      delayed=int(plant.get("delayed_samples", "0")))
 
 
 __all__ = ["LATE_WARN", "STALE_WARN", "LatencyHistogram", "RunSummary", "summarize"]

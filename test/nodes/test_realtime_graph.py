@@ -89,6 +89,32 @@ def test_mode_cli_rejects_unknown_name_and_reports_missing_graph(domain):
     assert "not available" in gone.stderr and "Traceback" not in gone.stderr
 
 
+def _delayed_from_bag(got: dict[str, list[tuple[int, bytes]]], rate: float,
+                      timeout_s: float, before_s: float = 0.0) -> int:
+    """Samples x controllers at which the newest force published before the sample answers
+    a sample older than the previous one, without being older than ``timeout_s``."""
+    raw = cdr.decode_batch(cdr.JOINT_STATE, [m for _, m in got[topics.SENSORS_RAW]])
+    steps = np.round(raw.stamp_ns * rate / 1e9).astype(int)
+    t_raw = np.array([t for t, _ in got[topics.SENSORS_RAW]], dtype=np.int64)
+    at = dict(zip(steps.tolist(), t_raw.tolist(), strict=True))
+    n = 0
+    for c in ("fb_stage1", "fb_stage2", "ff_stage1"):
+        msgs = got[topics.force_topic(c)]
+        b = cdr.decode_batch(cdr.WRENCH_STAMPED, [m for _, m in msgs])
+        k = np.round(b.stamp_ns * rate / 1e9).astype(int)
+        keep = ~_watchdog_zeros(k, b.fields["wrench"])
+        k, t = k[keep], np.array([t for t, _ in msgs], dtype=np.int64)[keep]
+        newest = np.searchsorted(t, t_raw - int(before_s * 1e9)) - 1  # in sample order
+        for s, t_s, i in zip(steps[1:], t_raw[1:], newest[1:], strict=True):
+            if i < 0:
+                continue  # nothing answered yet
+            j = int(k[i])
+            if t_s - at.get(j, t_s) > timeout_s * 1e9:
+                continue  # stale, not delayed
+            n += int(j < s - 1)
+    return n
+
+
 def _watchdog_zeros(k: np.ndarray, wrench: np.ndarray) -> np.ndarray:
     """Mask of a force stream's watchdog zeros: a controller whose input stayed away for
     ``control.input_timeout_s`` publishes zero force stamped with the sample time it reckons
@@ -147,3 +173,13 @@ def test_recorded_real_time_bag_starts_at_sample_zero(domain: int, cfg: SystemCo
         assert k.max() >= int(1.9 * rate) - 1, (topic, k.max())
         if topic in (topics.SENSORS_RAW, topics.truth_topic("stage1")):
             assert k.min() == 0 and len(k) == k.max() + 1, (topic, k.min(), len(k))
+    # the forces applied one sample late or more (summary "delayed"), bounded from the bag's
+    # publication times (each part logs a message at its publication, on one clock): at step s
+    # the plant holds the newest answer it drained just before it published sample s. An
+    # answer published after sample s was not there (the lower bound); one published 0.25 ms
+    # (half a period) before it was (the upper bound: the drain runs ~50-100 us before the
+    # publication here, 3 runs: 1,443 / 1,513 / 1,988 delayed, bounds 1,253-1,720,
+    # 1,226-1,819, 1,744-2,108 at 0.1 ms)
+    lo = _delayed_from_bag(got, rate, cfg.control.input_timeout_s)
+    hi = _delayed_from_bag(got, rate, cfg.control.input_timeout_s, before_s=0.5 / rate)
+    assert lo - 12 <= summary["delayed"] <= hi, (lo, summary["delayed"], hi)

@@ -86,6 +86,23 @@ def test_a_held_value_counts_from_its_own_time_and_an_older_one_is_ignored() -> 
     assert h.take(2.012) == ({"a": 3.0}, [])
 
 
+def test_a_fresh_answer_to_an_older_sample_than_due_counts_as_delayed() -> None:
+    """At 1 kHz, sample k published at k ms; at step k the plant is due the answer to k - 1.
+    An answer to k - 2 (k - 1 skipped or late) is applied, fresh, and counted delayed; a stale
+    one is stale, not delayed; none before the first answer; the due answer is on time."""
+    h = HeldInputs(["a", "b"], timeout_s=0.01, zero=0.0)
+    h.take(0.0005, due=-math.inf)  # step 0: nothing answerable yet
+    assert h.delayed_samples == {"a": 0, "b": 0}
+    h.put("a", 1.0, 0.000)
+    h.put("b", 2.0, 0.000)
+    assert h.take(0.0015, due=0.000)[0] == {"a": 1.0, "b": 2.0}  # step 1, both on time
+    h.put("a", 3.0, 0.001)  # b skipped sample 1
+    assert h.take(0.0025, due=0.001)[0] == {"a": 3.0, "b": 2.0}  # step 2: b applied 1 late
+    assert h.delayed_samples == {"a": 0, "b": 1}
+    assert h.take(0.0125, due=0.011)[0] == {"a": 0.0, "b": 0.0}  # both stale at step 12
+    assert h.delayed_samples == {"a": 0, "b": 1} and h.stale_samples == {"a": 1, "b": 1}
+
+
 def test_watchdog() -> None:
     """Fresh, then stale once, stays stale (repeated zero force), back on the next input."""
     w = Watchdog(0.01)
