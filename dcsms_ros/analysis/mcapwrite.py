@@ -173,7 +173,11 @@ class McapBagWriter:
         BagError
             After :meth:`close` (a write in another thread ends first).
         """
-        self.write_all(((topic, t_ns, data),))
+        with self._lock:
+            if self._closed:
+                raise BagError(f"{self.path}: written after close")
+            self._write(topic, t_ns, data)
+        self._flush_if_due()
 
     def write_all(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
         """Messages ``(topic, t_ns, data)`` in their order, under one hold of the lock (a
@@ -182,31 +186,31 @@ class McapBagWriter:
         with self._lock:
             if self._closed:
                 raise BagError(f"{self.path}: written after close")
-            self._write(messages)
+            one = self._write
+            for topic, t_ns, data in messages:
+                one(topic, t_ns, data)
         self._flush_if_due()
 
-    def _write(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
+    def _write(self, topic: str, t_ns: int, data: bytes) -> None:
         # a recorder's per-message path (~1.2 us): one struct pack, two bytearray appends,
         # index entries into an array('Q'), no numpy call per message
-        topics, limit = self.topics, self.chunk_bytes
+        t = self._topic(topic)
+        t_ns = int(t_ns)
         ch = self._chunk
-        for topic, log_ns, data in messages:
-            t = topics.get(topic) or self._topic(topic)
-            t_ns = int(log_ns)
-            size = len(ch.data)
-            if size and size + MESSAGE_HEADER + len(data) > limit:
-                self._close_chunk()
-                ch, size = self._chunk, 0
-            single = ch.singles.get(t.channel)
-            if single is None:
-                single = ch.singles[t.channel] = array("Q")
-            single.append(t_ns)
-            single.append(size)
-            ch.data += MESSAGE.pack(0x05, 22 + len(data), t.channel, 0, t_ns, t_ns)
-            ch.data += data
-            ch.t0 = min(ch.t0, t_ns)
-            ch.t1 = max(ch.t1, t_ns)
-            t.count += 1
+        size = len(ch.data)
+        if size and size + MESSAGE_HEADER + len(data) > self.chunk_bytes:
+            self._close_chunk()
+            ch, size = self._chunk, 0
+        single = ch.singles.get(t.channel)
+        if single is None:
+            single = ch.singles[t.channel] = array("Q")
+        single.append(t_ns)
+        single.append(size)
+        ch.data += MESSAGE.pack(0x05, 22 + len(data), t.channel, 0, t_ns, t_ns)
+        ch.data += data
+        ch.t0 = min(ch.t0, t_ns)
+        ch.t1 = max(ch.t1, t_ns)
+        t.count += 1
 
     def rows_template(self, topics: Sequence[str],
                       templates: Sequence[np.ndarray]) -> RowTemplate:

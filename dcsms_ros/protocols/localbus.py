@@ -17,15 +17,16 @@ the bytes to the endpoints of the topic in publication order:
   path has nothing left to do, or once :data:`OBSERVER_BATCH` messages wait, so it never
   delays an answer by more than one batch and loses nothing (the queue is not bounded: a
   lockstep run waits for its observers as it waited for a reliable reader). One call per
-  batch, not per message: a recorder of 11 topics took 1.8-2.0 us per message against
+  batch, not per message: a recorder of 11 topics took 1.6-2.0 us per message against
   2.2-2.4 with a call each (a microbenchmark, 2026-12-02; the composed lockstep graph,
   recorded, 4 same-run pairs: +0.2 to +6.5 %, within its noise).
 
 Every endpoint gets every message once; a topic's DDS publication is the caller's business:
-:meth:`BusWriter.remote` tells it (from the DDS writer's matched-reader count and the number of
-this process's own DDS readers, :meth:`LocalBus.add_reader`) whether a reader outside the
-process is matched. Publications from another thread than the dispatching one call ``wake``.
-No ROS here: unit-tested with plain callables (test/protocols/test_localbus.py).
+:meth:`BusWriter.remote` tells it (from the DDS writer's matched-reader count,
+:mod:`.matched`, and the number of this process's own DDS readers, :meth:`LocalBus.add_reader`)
+whether a reader outside the process is matched. Publications from another thread than the
+dispatching one call ``wake``. No ROS here: unit-tested with plain callables
+(test/protocols/test_localbus.py).
 """
 
 from __future__ import annotations
@@ -43,38 +44,6 @@ OBSERVER_BATCH = 64
 #: request and runs its ticks during an endless lockstep chain.
 DISPATCH_LIMIT = 2000
 
-#: How long (ns) a composed publisher trusts its DDS writer's matched-reader count. A reader
-#: that matched within it misses nothing of a transient-local topic (the held history), and of
-#: a volatile one at most that millisecond's messages, as if DDS had matched it 1 ms later.
-MATCH_REFRESH_NS = 1_000_000
-
-
-class MatchCount:
-    """A DDS writer's matched-reader count, asked at most every :data:`MATCH_REFRESH_NS`.
-
-    Parameters
-    ----------
-    ask : callable
-        ``ask()`` -> int, the count (the publisher handle's ``get_subscription_count``).
-    clock : callable
-        ``clock()`` -> int ns (monotonic).
-    """
-
-    def __init__(self, ask: Callable[[], int], clock: Callable[[], int] = time.monotonic_ns
-                 ) -> None:
-        self._ask, self._clock = ask, clock
-        self._n = 0
-        self._due = -1
-
-    def __call__(self) -> int:
-        """The count, at most :data:`MATCH_REFRESH_NS` old."""
-        now = self._clock()
-        if now >= self._due:
-            self._n = int(self._ask())
-            self._due = now + MATCH_REFRESH_NS
-        return self._n
-
-
 @dataclass
 class Endpoint:
     """One in-process subscriber of a topic.
@@ -90,7 +59,7 @@ class Endpoint:
     latest_only : bool
         Handlers: skip a message when a newer one of the topic is queued.
     delivered : int
-        Messages handed to this endpoint (an observer's: queued for its sink).
+        Messages handed to this endpoint (not counted for an observer: its sink counts).
     skipped : int
         Messages skipped for a newer one (``latest_only``).
     """
@@ -150,11 +119,12 @@ class Inbox(Endpoint):
         return [q.popleft()[0] for _ in range(min(len(q), limit))]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Observer(Endpoint):
-    """One topic's messages queued for ``sink`` with ``tag`` (see :meth:`LocalBus.observe`)."""
+    """One topic's messages queued for ``sink`` with ``tag`` (see :meth:`LocalBus.observe`);
+    its sink counts what it was handed (:attr:`Sink.delivered`)."""
 
-    sink: Sink = field(default_factory=lambda: Sink(lambda batch: None))
+    sink: Sink
     tag: Any = None
 
 
@@ -170,35 +140,6 @@ class _Topic:
     readers: int = 0
     published: int = 0
     queued: int = 0
-
-
-class HeldHistory:
-    """The newest ``depth`` messages a keep-last writer did not publish on DDS (no reader
-    outside the process was matched), so that the first remote reader still gets the history
-    a transient-local writer promises: :meth:`release` them before the next DDS publication.
-    Messages that went to DDS are in the DDS writer's own history and are not held again.
-
-    Parameters
-    ----------
-    depth : int
-        The writer's history depth (messages).
-    """
-
-    def __init__(self, depth: int) -> None:
-        self._held: deque[bytes] = deque(maxlen=max(int(depth), 1))
-
-    def __len__(self) -> int:
-        return len(self._held)
-
-    def hold(self, data: bytes) -> None:
-        """Keep ``data`` (published in the process only); the oldest goes beyond ``depth``."""
-        self._held.append(data)
-
-    def release(self) -> list[bytes]:
-        """The held messages, oldest first, and forget them."""
-        out = list(self._held)
-        self._held.clear()
-        return out
 
 
 class BusWriter:
@@ -357,7 +298,6 @@ class LocalBus:
             observers = topic.observers
             if observers:
                 for ob in observers:
-                    ob.delivered += 1
                     ob.sink.items.append((ob.tag, data, seq, t_ns))
                 self._waiting += len(observers)
                 if self._waiting >= self.observer_batch:
@@ -399,12 +339,11 @@ class LocalBus:
                 box.delivered += 1
                 box.queue.append((data, t_ns))
             for ob in topic.observers:
-                ob.delivered += 1
                 ob.sink.items.append((ob.tag, data, seq, t_ns))
             self._waiting += len(topic.observers)
         self.flush_observers()
         return n
 
 
-__all__ = ["DISPATCH_LIMIT", "MATCH_REFRESH_NS", "OBSERVER_BATCH", "BusWriter", "Endpoint",
-           "HeldHistory", "Inbox", "LocalBus", "MatchCount", "Observer", "Sink"]
+__all__ = ["DISPATCH_LIMIT", "OBSERVER_BATCH", "BusWriter", "Endpoint", "Inbox", "LocalBus",
+           "Observer", "Sink"]

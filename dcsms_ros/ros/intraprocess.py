@@ -12,14 +12,14 @@ DDS only when DDS has a reader to give it to:
 * **Remote readers.** The DDS writer's matched-reader count (``get_subscription_count()``)
   minus this process's own readers of the topic (counted as they are created) is the number of
   readers outside the process: rclcpp's rule. The count is asked again at the first
-  publication 1 ms after the last answer (:class:`~dcsms_ros.protocols.localbus.MatchCount`),
+  publication 1 ms after the last answer (:class:`~dcsms_ros.protocols.matched.MatchCount`),
   so a remote reader (``ros2 topic echo``, a recorder process, a probe) gets every message
   published from at most 1 ms after it matched, and nothing goes to DDS 1 ms after the last
   one left. Asked at every publication, the rmw call (~0.5 us in the composed process, ten
   publications per sample) was 3.6 % of the composed lockstep step (py-spy).
 * **History.** A transient-local writer (the lockstep velocities and applied forces,
   :func:`~.qos.stream_pub` ``durable=True``) holds the newest messages of its depth that went
-  to no DDS reader (:class:`~dcsms_ros.protocols.localbus.HeldHistory`) and publishes them
+  to no DDS reader (:class:`~dcsms_ros.protocols.matched.HeldHistory`) and publishes them
   on DDS, oldest first, just before the first message a remote reader is matched for: a
   late-joining recorder gets the same history as from one process per node. (Publishing them
   on DDS all along cost ~20 us per message, 4 per lockstep sample: the DDS copies to this
@@ -36,7 +36,8 @@ from rclpy.duration import Duration
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy
 
-from dcsms_ros.protocols.localbus import BusWriter, HeldHistory, LocalBus, MatchCount
+from dcsms_ros.protocols.localbus import BusWriter, LocalBus
+from dcsms_ros.protocols.matched import HeldHistory, MatchCount
 from dcsms_ros.ros.hostlane import LaneWriter
 
 
@@ -156,7 +157,7 @@ class DirectPublisher(_Wrapped):
         """Publish ``data`` (serialized) on DDS, then hand it to the observer, if any. With
         an observer, a volatile writer skips DDS while no reader is matched (the plant's truth
         topics, recorded in the process: no reader of them elsewhere; the count is at most
-        1 ms old, :class:`~dcsms_ros.protocols.localbus.MatchCount`); a transient-local one
+        1 ms old, :class:`~dcsms_ros.protocols.matched.MatchCount`); a transient-local one
         always publishes, for the history a late reader gets."""
         obs = self._observer
         lane = self.lane

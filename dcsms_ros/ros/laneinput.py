@@ -20,7 +20,7 @@ from rclpy.node import Node
 from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.lanes import CopyLedger
-from dcsms_ros.protocols.localbus import MatchCount
+from dcsms_ros.protocols.matched import MatchCount
 from dcsms_ros.ros import hostlane
 from dcsms_ros.ros.connectivity import UNKNOWN_NODE
 from dcsms_ros.ros.hostlane import LaneReader, LaneWriter

@@ -25,7 +25,7 @@ from dcsms_ros.analysis.gaps import PUBLISHED_KEY
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import RECORD_PART_ENV, RECORD_TOPICS_ENV
 from dcsms_ros.nodes.recorder_part import attach
-from dcsms_ros.protocols.localbus import MATCH_REFRESH_NS
+from dcsms_ros.protocols.matched import MATCH_REFRESH_NS
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.callbackgroups import UnlockedGroup
 from dcsms_ros.ros.graphnode import GraphNode

@@ -7,13 +7,7 @@ from typing import Any
 
 import pytest
 
-from dcsms_ros.protocols.localbus import (
-    MATCH_REFRESH_NS,
-    HeldHistory,
-    LocalBus,
-    MatchCount,
-    Sink,
-)
+from dcsms_ros.protocols.localbus import LocalBus, Sink
 
 
 class Ticks:
@@ -152,29 +146,6 @@ def test_remote_counts_only_readers_outside_the_process() -> None:
     assert other.remote(1) and not other.remote(0)
 
 
-def test_match_count_asks_again_only_after_the_refresh_interval() -> None:
-    """The count is asked at the first call, kept for MATCH_REFRESH_NS, and asked again at the
-    first call after it: a reader matched at t is seen from t + 1 ms at the latest."""
-    now = [5_000]
-    readers = [2]
-    asked = []
-
-    def ask() -> int:
-        asked.append(now[0])
-        return readers[0]
-
-    count = MatchCount(ask, clock=lambda: now[0])
-    assert count() == 2 and asked == [5_000]
-    readers[0] = 3  # a remote reader matches
-    now[0] += MATCH_REFRESH_NS - 1
-    assert count() == 2 and len(asked) == 1
-    now[0] += 1
-    assert count() == 3 and asked == [5_000, 5_000 + MATCH_REFRESH_NS]
-    readers[0] = 2  # ... and leaves
-    now[0] += 2 * MATCH_REFRESH_NS
-    assert count() == 2 and len(asked) == 3
-
-
 def test_publication_from_another_thread_wakes_the_dispatcher() -> None:
     """A message published by a thread other than the owner calls ``wake``; the owner's own
     publications do not."""
@@ -234,19 +205,6 @@ def test_dispatch_limit_leaves_the_rest_queued() -> None:
         w.publish(b"%d" % k)
     assert [bus.dispatch(limit=10) for _ in range(4)] == [10, 10, 5, 0]
     assert got == [b"%d" % k for k in range(25)] and not bus.pending
-
-
-@pytest.mark.parametrize("published, depth", [(3, 5), (12, 5)])
-def test_held_history_keeps_the_newest_depth_messages_until_released(published: int,
-                                                                     depth: int) -> None:
-    """What a transient-local writer published in the process only: the newest ``depth``,
-    oldest first, once; nothing is released twice."""
-    h = HeldHistory(depth)
-    for k in range(published):
-        h.hold(b"%d" % k)
-    assert len(h) == min(published, depth)
-    assert h.release() == [b"%d" % k for k in range(max(published - depth, 0), published)]
-    assert h.release() == [] and len(h) == 0
 
 
 def test_latest_only_handler_skips_what_a_newer_message_replaces() -> None:
