@@ -6,8 +6,9 @@ both sides on the hot path (``dcsms_ros/ros/hotpath.py``), then the six-process 
 (plant, decoupling, fb_stage1, fb_stage2, ff_stage1, mode_switch; table1, DFBC+FFC) in lockstep
 with the hot path on and off (``DCSMS_HOT_PATH=0``: every subscription on the default
 executor), then in real time at ``plant.rate_hz`` for ``--rt-seconds``; the composed graph
-beside it; last the user's per-process real-time command and the CPU per node and sample
-(``per_process_bench.py``).
+beside it (its real time in repeated runs, each beside the machine's floor:
+``composed_realtime.py``); last the user's per-process real-time command and the CPU per node
+and sample (``per_process_bench.py``).
 
 Each graph run and its timings come from ``graph_run.py``: lockstep rate, real-time period
 percentiles, deadline misses (period > 1.5 T) and sensor-to-force latency from the plant's
@@ -33,8 +34,12 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
+import composed_realtime
+import timer_floor
 from graph_run import CONFIG, env, lockstep_rate, p50_us, realtime_stats, run_graph
 from per_process_bench import per_process_rows
+
+from dcsms_ros.ros.cpulatency import latency_from_env
 
 Row = dict[str, Any]
 
@@ -126,12 +131,6 @@ def run(smoke: bool, tmp: Path, rt_seconds: float | None = None) -> list[Row]:
     return rows
 
 
-#: Why the composed real-time row misses its target where it does (docs/performance.md,
-#: "Where the composed late samples come from").
-COMPOSED_LATE_WHY = ("; NOT met where the driver thread needs ~70-75 % of a core at 2 kHz: "
-                     "the tail of its own iteration (p99 ~0.5 ms) reaches the period, 58 % of "
-                     "late gaps busy in the driver, 35 % waiting; compare the machine's floor "
-                     "(next row): an ideal thread of the same mean CPU (docs/performance.md)")
 #: What the deadline-miss rows measure, beside issue 21's late + stale.
 #: Why one process per node misses real time in lockstep (the per-process lockstep rows).
 LOCKSTEP_PP_WHY = ("NOT met: each lockstep step waits for three hops in sequence between "
@@ -219,28 +218,17 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
                  "value": rate / 2000.0, "unit": "x real time", "target": 1.0,
                  "note": f"{rate:.0f} steps/s; {_recorded(tem, int(round(tem_s * 2000)))}"})
     rows.append(_up_row(smoke, tmp, base + 16))
-    # recording on, in the process (`dcsms up --composed --record`'s default)
-    r = run_graph("realtime", rt_s, base + 15, tmp, timeout_s=rt_s * 3 + 120, composed=True,
-                  record="composed", rt_priority=0 if smoke else 50)
-    s = realtime_stats(r)
-    rt = _realtime_rows(r, s, rt_s, ", composed, recorder in the process")
-    rt[1]["target_max"], rt[2]["target_max"] = 1e-3, 0.5
-    samples = int(round(rt_s * r["rate_hz"]))
-    # deadlines that passed: the samples and the ones dropped from a backlog (RunSummary's)
-    late = (r["late"] / (samples + r["overruns"])
-            + r["stale"] / (samples * r["controllers"]))
-    floor = _floor_row(smoke, r["cpu"].get("driver", r["cpu"]["composed"]) / r["rate_hz"] * 1e6,
-                       rt_s)
-    rt.insert(1, {"name": "graph: real time, composed, recorder in the process, late + stale "
-                          "per sample (issue 21)",
-                  "value": late, "unit": "", "target_max": 1e-3,
-                  "baseline_name": "the machine's floor", "baseline": floor["value"],
-                  "note": f"late {r['late']} of {samples + r['overruns']} deadlines, stale forces "
-                          f"{r['stale']} of {samples * r['controllers']}; "
-                          f"{_recorded(r, samples)}; --rt-priority {0 if smoke else 50}"
-                          + (COMPOSED_LATE_WHY if late > 1e-3 else "")})
-    rt.insert(2, floor)
-    rows += rt
+    # recording on, in the process (`dcsms up --composed --record`'s default), repeated,
+    # each run beside the machine's floor
+    held = latency_from_env()[0]  # as the graph's runs hold it
+    secs, runs, floors, idle = composed_realtime.measure(smoke, tmp, base + 15, min(rt_s, 20.0),
+                                                         timer_floor.measure, held)
+    kept = [_recorded(r, int(round(secs * r["rate_hz"]))) for r in runs]
+    short = [k for k in kept if not k.endswith("none lost")]
+    rows += composed_realtime.rows(
+        secs, runs, floors, idle, "; ".join(short) if short else
+        f"every stream message published was recorded, in {len(runs)} of {len(runs)} runs",
+        held, _realtime_rows)
     rows.append(_demo_row(smoke, tmp))
     return rows
 
@@ -260,31 +248,6 @@ def _lockstep_why(composed: float, process: float) -> str:
             "3 %), and it is preempted on a shared machine (performance.md, the composed "
             "lockstep step); the 6 processes moved their per-sample messages onto host lanes "
             "and got 7-14 % faster in lockstep (3 same-run pairs, performance.md)")
-
-
-def _floor_row(smoke: bool, work_us: float, rt_s: float) -> Row:
-    """The machine's floor beside the composed real-time run (``timer_floor.py``): late
-    samples of an ideal SCHED_FIFO thread that needs the driver thread's mean CPU per sample,
-    constant, and of one that needs none."""
-    import timer_floor
-
-    from dcsms_ros.ros.cpulatency import latency_from_env
-
-    secs = 1.0 if smoke else min(rt_s, 20.0)
-    prio = 0 if smoke else 50
-    held = latency_from_env()[0]  # as the graph's run held it
-    busy, idle = (timer_floor.measure(secs, w, prio, held) for w in (work_us, 0.0))
-    wake = "/".join(f"{q:.0f}" for q in busy["wake_us"])
-    return {"name": "graph: the machine's floor, an ideal 2 kHz SCHED_FIFO thread of constant "
-                    "CPU per sample, late per sample",
-            "value": busy["late_ratio"], "unit": "", "baseline_name": "needing no CPU",
-            "baseline": idle["late_ratio"],
-            "note": f"{work_us:.0f} us per sample (the composed run's driver thread): late "
-                    f"{busy['late']} of {busy['samples']}, wake-up after the deadline "
-                    f"p50/p99/p99.9 {wake} us; no CPU: late {idle['late']}; CPU wake-up "
-                    f"latency {'not held' if held is None else f'held at {held} us'}; what an "
-                    f"ideal 2 kHz thread loses on this machine (docs/performance.md, the "
-                    f"machine's floor)"}
 
 
 def _up_row(smoke: bool, tmp: Path, domain: int) -> Row:

@@ -82,6 +82,12 @@ def late_per_sample(summary: dict[str, Any]) -> float:
     return float(summary["late_fraction"]) + summary["stale"] / max(summary["forces"], 1)
 
 
+def _delayed(summary: dict[str, Any]) -> str:
+    """A run's forces applied a sample late (``delayed``: not in issue 21's late + stale)."""
+    n = summary.get("delayed", 0)
+    return f"{n} ({n / max(summary['forces'], 1):.1%})"
+
+
 def per_process_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
     """Issue 21's per-process rows (:data:`USER_RUNS` runs of the user's command), then the CPU
     rows (:func:`cpu_rows`)."""
@@ -98,7 +104,8 @@ def per_process_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row
     ]
     if ended:
         lates = [late_per_sample(r["summary"]) for r in ended]
-        each = ", ".join(f"late {r['summary']['late']} stale {r['summary']['stale']} ({v:.4f})"
+        each = ", ".join(f"late {r['summary']['late']} stale {r['summary']['stale']} ({v:.4f}), "
+                         f"forces applied a sample late {_delayed(r['summary'])}"
                          for r, v in zip(ended, lates, strict=True))
         busy = " / ".join(f"{100 * r['busy']:.0f}" for r in ended)
         note = (f"the worst of {len(ended)} runs; each: {each}; the machine's {os.cpu_count()} "
