@@ -173,11 +173,7 @@ class McapBagWriter:
         BagError
             After :meth:`close` (a write in another thread ends first).
         """
-        with self._lock:
-            if self._closed:
-                raise BagError(f"{self.path}: written after close")
-            self._write(topic, t_ns, data)
-        self._flush_if_due()
+        self.write_all(((topic, t_ns, data),))
 
     def write_all(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
         """Messages ``(topic, t_ns, data)`` in their order, under one hold of the lock (a
@@ -186,31 +182,43 @@ class McapBagWriter:
         with self._lock:
             if self._closed:
                 raise BagError(f"{self.path}: written after close")
-            one = self._write
-            for topic, t_ns, data in messages:
-                one(topic, t_ns, data)
+            self._append(messages)
         self._flush_if_due()
 
-    def _write(self, topic: str, t_ns: int, data: bytes) -> None:
-        # a recorder's per-message path (~1.2 us): one struct pack, two bytearray appends,
-        # index entries into an array('Q'), no numpy call per message
-        t = self._topic(topic)
-        t_ns = int(t_ns)
+    def _append(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
+        # a recorder's per-message path, one loop over the batch with everything in locals
+        # (~0.5 us a message): one struct pack, two bytearray appends, two index entries
+        # into an array('Q'); the chunk's time range is settled once per batch
+        topics, limit, pack = self.topics, self.chunk_bytes, MESSAGE.pack
         ch = self._chunk
-        size = len(ch.data)
-        if size and size + MESSAGE_HEADER + len(data) > self.chunk_bytes:
-            self._close_chunk()
-            ch, size = self._chunk, 0
-        single = ch.singles.get(t.channel)
-        if single is None:
-            single = ch.singles[t.channel] = array("Q")
-        single.append(t_ns)
-        single.append(size)
-        ch.data += MESSAGE.pack(0x05, 22 + len(data), t.channel, 0, t_ns, t_ns)
-        ch.data += data
-        ch.t0 = min(ch.t0, t_ns)
-        ch.t1 = max(ch.t1, t_ns)
-        t.count += 1
+        data_, singles, t0, t1 = ch.data, ch.singles, ch.t0, ch.t1
+        try:
+            for topic, when, data in messages:
+                t = topics.get(topic)
+                if t is None:
+                    raise BagError(f"{self.path}: topic {topic} was not added")
+                t_ns = int(when)
+                size = len(data_)
+                if size and size + MESSAGE_HEADER + len(data) > limit:
+                    ch.t0, ch.t1 = t0, t1
+                    self._close_chunk()
+                    ch = self._chunk
+                    data_, singles, t0, t1, size = ch.data, ch.singles, ch.t0, ch.t1, 0
+                single = singles.get(t.channel)
+                if single is None:
+                    single = singles[t.channel] = array("Q")
+                single.append(t_ns)
+                single.append(size)
+                data_ += pack(0x05, 22 + len(data), t.channel, 0, t_ns, t_ns)
+                data_ += data
+                # comparisons, not min()/max(): two builtin calls per message
+                if t_ns < t0:  # noqa: PLR1730
+                    t0 = t_ns
+                if t_ns > t1:  # noqa: PLR1730
+                    t1 = t_ns
+                t.count += 1
+        finally:  # what was appended before an error is in the chunk's range
+            ch.t0, ch.t1 = t0, t1
 
     def rows_template(self, topics: Sequence[str],
                       templates: Sequence[np.ndarray]) -> RowTemplate:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -37,11 +38,14 @@ def _indexed(path: Path) -> list[tuple[str, int, bytes]]:
     return out
 
 
+@pytest.mark.parametrize("batched", [False, True])
 @pytest.mark.parametrize("chunk_bytes", [700, 64 << 10])
-def test_single_messages_and_rows_read_back_in_order(tmp_path: Path, chunk_bytes: int) -> None:
+def test_single_messages_and_rows_read_back_in_order(tmp_path: Path, chunk_bytes: int,
+                                                     batched: bool) -> None:
     """Interleaved single messages (out of time order across topics, as a recorder receives
     them) and a row block: every message, its log time and bytes, as written and as rosbags'
-    own writer stores the same sequence; small chunks split the singles between chunks."""
+    own writer stores the same sequence; small chunks split the singles between chunks, also
+    within one batch (``write_all``), and each chunk's time range holds its messages."""
     rng = np.random.default_rng(3)
     t = 10**9 + np.arange(60, dtype=np.int64) * 500_000
     sent: list[tuple[str, int, bytes]] = []
@@ -61,7 +65,9 @@ def test_single_messages_and_rows_read_back_in_order(tmp_path: Path, chunk_bytes
     rows = cdr.encode_stamped(cdr.TWIST_STAMPED, t[40:], "stage1", np.ones((20, 6)))
     ours.write_rows(t[40:], TOPICS[:1], [np.frombuffer(b"".join(rows), np.uint8).reshape(20, -1)])
     ref.write_many(TOPICS[0], t[40:], rows)
-    for w in (ours, ref):
+    if batched:
+        ours.write_all(sent[25:])
+    for w in (ref,) if batched else (ours, ref):
         for msg in sent[25:]:
             w.write(*msg)
     assert ours.counts == ref.counts
@@ -75,6 +81,33 @@ def test_single_messages_and_rows_read_back_in_order(tmp_path: Path, chunk_bytes
     # the chunk reader finds the messages through the message indexes: each must point at
     # its record
     assert sorted(_indexed(tmp_path / "ours")) == sorted(got)
+    file = next((tmp_path / "ours").glob("*.mcap"))
+    channels, chunks = mcapchunks.summary(file)
+    assert len(chunks) > (1 if chunk_bytes < 1000 else 0)
+    for ch, block_times in zip(chunks, _chunk_times(file, channels, chunks), strict=True):
+        assert ch.message_start_time == min(block_times)
+        assert ch.message_end_time == max(block_times)
+
+
+def _chunk_times(file: Path, channels: dict[int, tuple[str, str]],
+                 chunks: list[Any]) -> list[list[int]]:
+    """The log times of each chunk's messages, read chunk by chunk."""
+    return [[int(t) for block in mcapchunks.iter_blocks(file, set(channels), [ch])
+             for t in block.log_ns] for ch in chunks]
+
+
+def test_unknown_topic_in_a_batch_keeps_what_came_before(tmp_path: Path) -> None:
+    """A batch stops at a topic that was not added (BagError); the messages before it are
+    written and counted, and the bag closes with them."""
+    sent = _stream(4)
+    w = McapBagWriter(tmp_path / "bag")
+    for topic in TOPICS:
+        w.add_topic(topic, cdr.TWIST_STAMPED)
+    with pytest.raises(BagError, match="/nope was not added"):
+        w.write_all([*sent[:3], ("/nope", sent[3][1], sent[3][2]), sent[3]])
+    assert sum(w.counts.values()) == 3
+    w.close()
+    assert _messages(tmp_path / "bag") == sent[:3]
 
 
 def _stream(n: int) -> list[tuple[str, int, bytes]]:

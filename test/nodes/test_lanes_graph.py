@@ -9,7 +9,6 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
 import rclpy
 from geometry_msgs.msg import TwistStamped
 from node_helpers import executor_for, spin_until
@@ -102,7 +101,6 @@ def _header(who: str, k: int) -> bytes:
     return serialize_message(h)
 
 
-@pytest.mark.timeout(120)
 def test_a_lane_reader_hears_a_writer_without_a_lane_once_and_the_lane_writers_copies_never(
         ctx):
     """A lane writer that also publishes on DDS (an outside reader is matched) and a plain DDS
