@@ -321,10 +321,27 @@ def report_exits(kids: Sequence[Child]) -> int:
         log = f"its log: {kid.log}"
         if code == -signal.SIGABRT and kid.stopped_by is signal.SIGABRT:
             how, log = "did not stop and was aborted", f"its threads' stacks are in {log}"
+        elif code == 1 and kid.log is not None and _teardown_timed_out(kid.log):
+            how = "saved everything but its teardown did not end in time, so it ended itself"
+            log = f"its threads' stacks are in {log}"
         print(f"dcsms up: {kid.name} {how}" + (f" ({log})" if kid.log else ""),
               file=sys.stderr, flush=True)
         status = 1
     return status
+
+
+def _teardown_timed_out(log: Path) -> bool:
+    """True if ``log`` ends with the stacks a node's bounded teardown writes when it runs
+    out (:meth:`dcsms_ros.ros.context.RosSession.bound_teardown`: faulthandler's
+    ``Timeout (h:mm:ss)!`` line, then the threads)."""
+    try:
+        with log.open("rb") as f:
+            f.seek(max(f.seek(0, os.SEEK_END) - 65536, 0))
+            tail = f.read().decode(errors="replace")
+    except OSError:
+        return False
+    return any(line.startswith("Timeout (") and line.rstrip().endswith(")!")
+               for line in tail.splitlines())
 
 
 def report_summary(spec: GraphSpec, plant: dict[str, str], bag: Path | None,

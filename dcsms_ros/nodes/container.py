@@ -135,12 +135,14 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
             since = time.time_ns()
             for nd in reversed(nodes):
                 quiesce(executor, nd, timeout_s=1.0)
-            close_nodes(nodes[::-1])
+            # bounded once nothing is left to save: without a recorder, before the nodes go
+            close_nodes(nodes[::-1], ros.bound_teardown if recorder is None else lambda: None)
             if ctx.bus is not None:  # what is still queued (final reports) to the recorder
                 ctx.bus.close()
             if recorder is not None:
                 recorder.drain(executor, since)
                 print(recorder.finish().text(), flush=True)
+                ros.bound_teardown()
                 recorder.destroy_node()
             executor.shutdown(timeout_sec=2.0)
     return status

@@ -328,6 +328,7 @@ def record(out: str, topics: Sequence[str] | None = None, storage: str | None = 
             raise
         finally:
             if node is not None:
+                ros.bound_teardown()  # the bag is closed (or aborted) by now
                 node.destroy_node()
 
 

@@ -26,12 +26,20 @@ Jazzy's rules in one place:
 - A ``main()`` still counts :data:`STOP_EXCEPTIONS` as a normal end (exit status 0):
   ``KeyboardInterrupt``, and ``ExternalShutdownException`` when the context was shut down
   under a spinning executor.
+- Once a node process has saved what it must save, its teardown (the nodes destroyed, the
+  context shut down) is bounded (:meth:`RosSession.bound_teardown`): rclpy holds the GIL
+  through the middleware's teardown of a node, and that teardown hung (mode_switch, in 2 of
+  158 runs of a one-process-per-node lockstep test, docs/performance.md), deaf to Ctrl-C and
+  to ``dcsms up``'s SIGINT and SIGTERM.
 """
 
 from __future__ import annotations
 
+import faulthandler
+import io
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -64,6 +72,12 @@ POLL_S = 0.1
 #: 15-90 against 7-66), so the composed host keeps :data:`POLL_S` (docs/performance.md,
 #: "The executor's poll held the GIL").
 HOST_POLL_S = 1.0
+#: How long a node process's teardown may take once it saved what it must
+#: (:meth:`RosSession.bound_teardown`), s: a normal one takes 30-40 ms (mode_switch, one process
+#: per node), far below ``dcsms up``'s 45 s before it aborts a recording node.
+TEARDOWN_BOUND_S = 10.0
+
+
 @dataclass(frozen=True)
 class RosSession:
     """What :func:`ros_context` yields: the initialised context and the stop flag (never set
@@ -77,11 +91,26 @@ class RosSession:
     context: Context
     stop: StopFlag = field(default_factory=StopFlag)
     wakers: list[Callable[[], object]] = field(default_factory=list)
+    #: the bound :meth:`bound_teardown` armed (s), cancelled once the context is shut down
+    bounds: list[float] = field(default_factory=list)
 
     def wake(self) -> None:
         """Call every registered waker."""
         for fn in list(self.wakers):
             fn()
+
+    def bound_teardown(self, seconds: float | None = None) -> None:
+        """Give what is left of the ``with`` block (the nodes' destruction, then the context's
+        shutdown) at most ``seconds`` (default :data:`TEARDOWN_BOUND_S`); call once nothing
+        is left to save. Past it, faulthandler's timer (a C thread: it needs no GIL) writes
+        every thread's stack to stderr, the node's log, and ends the process with status 1.
+        Nothing is armed where stderr has no file descriptor (an in-process test's capture)."""
+        bound = TEARDOWN_BOUND_S if seconds is None else float(seconds)
+        try:
+            faulthandler.dump_traceback_later(bound, exit=True, file=sys.stderr)
+        except (AttributeError, ValueError, OSError, io.UnsupportedOperation):
+            return
+        self.bounds.append(bound)
 
 
 class _SignalWake:
@@ -147,6 +176,8 @@ def ros_context(args: Sequence[str] | None = None, signals: bool = False,
             yield session
     finally:
         rclpy.try_shutdown(context=session.context)
+        if session.bounds:
+            faulthandler.cancel_dump_traceback_later()
         if waker is not None:
             waker.close()
         for s, h in old.items():
@@ -202,5 +233,5 @@ def spin_until(executor: Executor, done: Callable[[], bool], timeout_s: float | 
     return done()
 
 
-__all__ = ["HOST_POLL_S", "POLL_S", "STOP_EXCEPTIONS", "STOP_SIGNALS", "RosSession", "StopFlag",
-           "ros_context", "round_ender", "spin_until"]
+__all__ = ["HOST_POLL_S", "POLL_S", "STOP_EXCEPTIONS", "STOP_SIGNALS", "TEARDOWN_BOUND_S",
+           "RosSession", "StopFlag", "ros_context", "round_ender", "spin_until"]

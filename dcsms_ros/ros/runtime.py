@@ -261,12 +261,17 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
             # before the node's entities go: a failure in rclpy's teardown must not cost the
             # node's part of the bag
             closing = _Finish(extra, ran)
+
+            def saved() -> None:
+                closing()
+                ros.bound_teardown()
+
             try:
                 if node is not None:
                     hot = hot_path(node)
                     if hot is not None:
                         hot.stop()  # the hot thread ends before the node's entities go
-                    close_nodes([node], closing)
+                    close_nodes([node], saved)
             finally:
                 closing()
             status = closing.status or status
