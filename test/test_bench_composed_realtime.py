@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -65,6 +66,30 @@ def test_late_fraction_counts_every_passed_deadline(late: int, stale: int, overr
     assert_allclose(x, want)
 
 
+def poisson_interval(k: int) -> tuple[float, float]:
+    """The 95 % interval of a Poisson mean after ``k`` events, by bisection on the
+    cumulative probabilities (independent of the chi-square form the bench uses)."""
+    def cdf(m: float, j: int) -> float:
+        return sum(math.exp(-m + i * math.log(m) - math.lgamma(i + 1)) for i in range(j + 1))
+
+    def solve(f: Any, a: float, b: float) -> float:
+        for _ in range(200):
+            c = (a + b) / 2
+            a, b = (c, b) if f(c) > 0 else (a, c)
+        return (a + b) / 2
+
+    lo = 0.0 if k == 0 else solve(lambda m: cdf(m, k - 1) - 0.975, 1e-9, 10.0 * k + 10)
+    hi = solve(lambda m: cdf(m, k) - 0.025, 1e-9, 10.0 * k + 10)
+    return lo, hi
+
+
+@pytest.mark.parametrize("k, n", [(0, 1000), (1, 1000), (42, 8000), (160, 160000)])
+def test_count_interval_is_the_exact_poisson_interval(k: int, n: int) -> None:
+    lo, hi = composed_realtime.count_interval(k, n)
+    assert_allclose((lo * n, hi * n), poisson_interval(k), rtol=1e-6, atol=1e-9)
+    assert lo <= k / n <= hi
+
+
 def test_rows_pool_the_runs_and_count_those_within_the_target() -> None:
     """The late row's value is the pooled rate (not a mean of the runs' rates), its note names
     each run and how many met 1e-3; the floor row pools its runs the same way."""
@@ -86,6 +111,8 @@ def test_rows_pool_the_runs_and_count_those_within_the_target() -> None:
     assert_allclose(late["value"], 42 / 8000 + 3 / 24000)
     assert "within 0.001 in 1 of 2" in late["note"] and "NOT met" in late["note"]
     assert "0.00050 / 0.01025" in late["note"]
+    lo, hi = (x / 8000 + 3 / 24000 for x in poisson_interval(42))
+    assert f"interval of the pooled figure {lo:.5f}-{hi:.5f}" in late["note"]
     assert_allclose(floor["value"], 10 / 8000)
     assert_allclose(late["baseline"], floor["value"])
     assert floor["baseline"] == 0.0
