@@ -166,13 +166,8 @@ class McapBagWriter:
 
     # -- messages ------------------------------------------------------------------------
     def write(self, topic: str, t_ns: int, data: bytes) -> None:
-        """One message at log (and publish) time ``t_ns``.
-
-        Raises
-        ------
-        BagError
-            After :meth:`close` (a write in another thread ends first).
-        """
+        """One message at log (and publish) time ``t_ns``. Raises :class:`BagError` after
+        :meth:`close` (a write in another thread ends first) or for a topic not added."""
         self.write_all(((topic, t_ns, data),))
 
     def write_all(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
@@ -186,17 +181,14 @@ class McapBagWriter:
         self._flush_if_due()
 
     def _append(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
-        # a recorder's per-message path, one loop over the batch with everything in locals
-        # (~0.5 us a message): one struct pack, two bytearray appends, two index entries
-        # into an array('Q'); the chunk's time range is settled once per batch
+        # a recorder's per-message path (~0.5 us): one loop, its state in locals, one struct
+        # pack, two bytearray appends, two index entries; the time range set once per batch
         topics, limit, pack = self.topics, self.chunk_bytes, MESSAGE.pack
         ch = self._chunk
         data_, singles, t0, t1 = ch.data, ch.singles, ch.t0, ch.t1
         try:
             for topic, when, data in messages:
-                t = topics.get(topic)
-                if t is None:
-                    raise BagError(f"{self.path}: topic {topic} was not added")
+                t = topics.get(topic) or self._topic(topic)  # the latter raises
                 t_ns = int(when)
                 size = len(data_)
                 if size and size + MESSAGE_HEADER + len(data) > limit:
@@ -211,8 +203,7 @@ class McapBagWriter:
                 single.append(size)
                 data_ += pack(0x05, 22 + len(data), t.channel, 0, t_ns, t_ns)
                 data_ += data
-                # comparisons, not min()/max(): two builtin calls per message
-                if t_ns < t0:  # noqa: PLR1730
+                if t_ns < t0:  # noqa: PLR1730 - not min()/max(): two calls per message
                     t0 = t_ns
                 if t_ns > t1:  # noqa: PLR1730
                     t1 = t_ns

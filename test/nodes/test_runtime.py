@@ -16,7 +16,6 @@ import rclpy
 from rclpy.node import Node
 from std_msgs.msg import Header
 
-from dcsms_ros.cli import deploy
 from dcsms_ros.cli.deploy import children
 from dcsms_ros.graph import define_graph
 from dcsms_ros.ros.hotloop import IDLE_S, SHARED_CORE_GIL_SWITCH_S
@@ -399,72 +398,3 @@ def test_a_stop_signal_after_the_node_is_gone_is_harmless(domain: int) -> None:
                          timeout=60, check=False)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "Traceback" not in out.stderr, out.stderr
-
-
-#: A node process whose node's destruction blocks in C holding the GIL for 60 s (as rclpy's
-#: teardown of a node did in the middleware, docs/performance.md): its attachment is finished
-#: first, then the bounded teardown (patched to 1 s) ends it. With ``after``: a node whose
-#: destruction is quick, and the process lives on for 2 s after its context is shut down.
-HUNG_TEARDOWN = r"""
-import ctypes, os, signal, sys, time
-from rclpy.node import Node
-from dcsms_ros.ros import context
-from dcsms_ros.ros.runtime import run
-
-context.TEARDOWN_BOUND_S = 1.0
-hang = sys.argv[1] == "hang"
-
-class Node_(Node):
-    def __init__(self, context):
-        super().__init__("hung_teardown", context=context)
-        self.create_timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT))
-
-    def destroy_node(self):
-        print("destroy", flush=True)
-        if hang:
-            ctypes.PyDLL(None).sleep(60)  # libc's sleep, the GIL held
-        super().destroy_node()
-
-class Part:
-    def finish(self):
-        print("finish", flush=True)
-
-    def abort(self):
-        print("abort", flush=True)
-
-status = run(Node_, ["x"], lambda node: Part())
-time.sleep(2.0)
-print("alive", flush=True)
-sys.exit(status)
-"""
-
-
-def test_a_teardown_that_hangs_with_the_gil_held_ends_after_its_bound(
-        domain: int, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The node's part is finished, its destruction blocks holding the GIL (deaf to signals);
-    faulthandler's timer ends the process 1 s later with status 1 and the threads' stacks in
-    its log, and ``dcsms up`` says so in one line."""
-    kid = deploy.Child("hung", [sys.executable, "-c", HUNG_TEARDOWN, "hang"])
-    t0 = time.monotonic()
-    deploy.start([kid], tmp_path, verbose=False)
-    assert kid.proc is not None
-    assert kid.proc.wait(timeout=50) == 1
-    assert time.monotonic() - t0 < 30.0  # not the 60 s of the hang
-    text = (tmp_path / "hung.log").read_text()
-    assert text.split("\n")[:2] == ["finish", "destroy"], text
-    assert "Timeout (0:00:01)!" in text and "in destroy_node" in text, text
-    assert "alive" not in text
-    assert deploy.report_exits([kid]) == 1
-    assert capsys.readouterr().err.strip() == (
-        f"dcsms up: hung saved everything but its teardown did not end in time, so it ended "
-        f"itself (its threads' stacks are in its log: {tmp_path / 'hung.log'})")
-
-
-def test_the_teardown_bound_ends_with_the_context(domain: int) -> None:
-    """A quick teardown: the bound is cancelled when the context is shut down, so the process
-    lives on past it and exits 0."""
-    out = subprocess.run([sys.executable, "-c", HUNG_TEARDOWN, "quick"], capture_output=True,
-                         text=True, timeout=60, check=False)
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.split() == ["finish", "destroy", "alive"]
-    assert "Timeout" not in out.stderr
