@@ -106,7 +106,7 @@ class ExcitationNode(GraphNode, Hosted):
         self.housekeeping(1.0, self._report)
         # real time: the plant starts once DDS matched this node's ends (lockstep retransmits)
         self.ready = (None if self.lockstep else
-                      ReadyAnnouncer(self, self.hot, topics.EXCITATION_ID))
+                      ReadyAnnouncer(self, self.hot, topics.EXCITATION_ID, self.observed))
         self.get_logger().info(f"excitation {', '.join(s.text for s in self.specs)} on "
                                f"{self.pub.topic_name}, {'active' if start else 'inactive'}")
         self.hot.start()

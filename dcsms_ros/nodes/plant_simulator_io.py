@@ -7,7 +7,8 @@ clock and the true velocities; observer topics nobody subscribes to are not seri
 
 Handshake: sample 0 is published only once every force topic has a publisher, the raw topic a
 subscriber, in real time the decoupling and every controller announced that DDS matched their
-ends and the plant's force readers matched their writers (:mod:`dcsms_ros.ros.readiness`),
+ends (a writer of an observed topic: its reader outside the graph too) and the plant's force
+readers matched their writers (:mod:`dcsms_ros.ros.readiness`),
 with ``trip_gate`` mode_switch's trip topics are connected, each topic in
 ``wait_for_subscribers`` has a subscriber outside the graph (a recorder, a test probe, or the
 ``/diagnostics`` reader of ``dcsms up`` that must hear the run end), and the plant's own

@@ -90,7 +90,8 @@ class SensorDecouplingNode(GraphNode, Hosted):
         self._log_nonfinite = Throttled(self.get_logger(), 2.0)
         self.housekeeping(1.0, self._report)
         # real time: the plant starts once DDS matched this node's ends (lockstep retransmits)
-        self.ready = None if lockstep else ReadyAnnouncer(self, self.hot, DECOUPLING)
+        self.ready = (None if lockstep else
+                      ReadyAnnouncer(self, self.hot, DECOUPLING, self.observed))
         self.hot.start()
 
     def _channels(self, key: tuple[str, ...], v: np.ndarray) -> np.ndarray:

@@ -161,7 +161,8 @@ class ControllerNode(GraphNode, Hosted):
             steady_timer(self, max(self.watchdog.timeout_s / 4.0, 1e-3), self._watchdog_locked)
         self.housekeeping(1.0, self._report)
         # real time: the plant starts once DDS matched this node's ends (lockstep retransmits)
-        self.ready = None if self.lockstep else ReadyAnnouncer(self, self.hot, cid)
+        self.ready = (None if self.lockstep else
+                      ReadyAnnouncer(self, self.hot, cid, self.observed))
         self.get_logger().info(f"{cid}: input {topics.LOCAL.velocity(body)}, output "
                                f"{topics.LOCAL.force(cid)}, "
                                f"{'enabled' if enabled else 'disabled'}")

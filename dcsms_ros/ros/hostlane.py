@@ -224,6 +224,8 @@ class LaneWriter:
         self._readers, self._count = readers, count
         #: Readers the graph shows that no lane serves.
         self.outside = 0
+        #: Lanes closed because their reader went (its FIFO removed, or a write found it gone).
+        self.left = 0
         self._graph = -1
         self._unsure = False
         self._due = 0
@@ -251,6 +253,7 @@ class LaneWriter:
         for name in list(self.lanes):
             if name not in names:
                 self._close(name)
+                self.left += 1
         for name in names - self.lanes.keys():
             try:
                 fd = os.open(self.dir / name, os.O_WRONLY | os.O_NONBLOCK | os.O_CLOEXEC)
@@ -296,6 +299,7 @@ class LaneWriter:
         self.table.sent += 1
         for name in gone or ():
             self._close(name, say_bye=False)
+            self.left += 1
         return True
 
     def _close(self, name: str, say_bye: bool = True) -> None:

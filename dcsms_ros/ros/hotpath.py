@@ -368,8 +368,9 @@ class HotPath:
             if isinstance(w, DirectPublisher) and w.lane is not None:
                 t = w.lane.table
                 self.node.get_logger().info(
-                    f"lanes: {w.lane.topic}: {t.sent} messages on lanes, {w.on_dds} on DDS, "
-                    f"{t.drops} lost on full lanes")
+                    f"lanes: {w.lane.topic}: {t.sent} messages on lanes, {w.on_dds} on DDS "
+                    f"({w.on_dds_after_leave} after a lane's reader left), {t.drops} lost on "
+                    "full lanes")
         self.lanes.close()
 
     def tick(self) -> float | None:

@@ -146,6 +146,9 @@ class DirectPublisher(_Wrapped):
         self.lane = lane
         #: Messages published on DDS (with lanes: those for readers without one).
         self.on_dds = 0
+        #: Of those, the ones published after a lane's reader went (its DDS reader is matched
+        #: until its process leaves DDS: a node still answering while the plant closes).
+        self.on_dds_after_leave = 0
         self._raw: Callable[[bytes], None] = pub.handle.publish_raw
         self._matched = MatchCount(pub.handle.get_subscription_count)
         self._durable = pub.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
@@ -169,6 +172,8 @@ class DirectPublisher(_Wrapped):
             if dds:
                 self._raw(data)
                 self.on_dds += 1
+                if lane.left:
+                    self.on_dds_after_leave += 1
             if obs is not None:
                 obs(data, t_ns)
             return

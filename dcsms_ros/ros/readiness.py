@@ -12,7 +12,12 @@ So in real time each node of the control path (the decoupling, every controller,
 excitation) runs a :class:`ReadyAnnouncer`: once each of its per-sample readers matched a
 writer and each of its per-sample writers matched every reader the node sees, it publishes
 True, once, on ``<role>/ready`` (std_msgs/Bool, reliable, transient local: a plant that comes
-later still hears it; one writer per topic, as a recorder's sequence check expects). The
+later still hears it; one writer per topic, as a recorder's sequence check expects). A writer
+of a topic in ``wait_for_subscribers`` also waits until its node sees a reader outside the graph
+and the writer matched it: the plant's view of that observer says nothing of the writer's
+match, and a writer with host lanes sends on DDS only to readers it matched, so an outside
+reader of the decoupling's velocity got samples only from ~1.6 s of a 3 s run in 3 of 21 runs
+(``test_lanes_graph.py``; docs/performance.md, thirty-seventh session). The
 plant's :class:`ReadySet` listens to the roles it needs; its handshake waits for the
 decoupling and every controller, bounded by ``handshake_timeout_s`` like the rest.
 """
@@ -28,7 +33,7 @@ from std_msgs.msg import Bool
 from dcsms_ros.core import topics
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
-from dcsms_ros.ros.connectivity import writer_matched
+from dcsms_ros.ros.connectivity import outside_graph, writer_matched
 from dcsms_ros.ros.hotpath import HotPath
 
 #: Seconds between two checks of a node's matches until it announced.
@@ -48,19 +53,28 @@ class ReadyAnnouncer:
         The per-sample readers and writers to check.
     role : str
         What the plant waits for: :data:`DECOUPLING`, a controller id or ``excitation``.
+    observed : iterable of str
+        The node's ``wait_for_subscribers``: topics whose writer waits for an outside reader.
     """
 
-    def __init__(self, node: Node, hot: HotPath, role: str) -> None:
+    def __init__(self, node: Node, hot: HotPath, role: str, observed: Iterable[str] = ()
+                 ) -> None:
         self.node, self.hot, self.role = node, hot, role
+        self.observed = frozenset(observed)
         self.announced = False
         self.pub = node.create_publisher(Bool, topics.LOCAL.ready(role), qos.latched())
         self._timer = steady_timer(node, CHECK_S, self.check)
 
     def missing(self) -> list[str]:
         """The ends not matched yet: topics of readers without a writer, of writers that have
-        not matched every reader the node sees."""
+        not matched every reader the node sees, ``observer of <topic>`` for an observed topic
+        the node sees no outside reader of."""
         out = self.hot.unmatched()
-        out += [p.topic_name for p in self.hot.writers if not writer_matched(self.node, p)]
+        for p in self.hot.writers:
+            if not writer_matched(self.node, p):
+                out.append(p.topic_name)
+            elif p.topic_name in self.observed and not outside_graph(self.node, p.topic_name):
+                out.append(f"observer of {p.topic_name}")
         return out
 
     def check(self) -> bool:

@@ -108,13 +108,27 @@ def test_a_killed_reader_closes_its_lane_and_its_fifo_is_removed_by_the_next_rea
     os.kill(p.pid, signal.SIGKILL)
     p.join(10)
     w.write(b"after", time.time_ns())  # EPIPE: nobody reads it any more
-    assert w.lanes == {}
+    assert w.lanes == {} and w.left == 1
     stale = list(topic_dir(TOPIC, tmp_path).iterdir())
     assert len(stale) == 1  # killed: it could not remove its FIFO
     r = LaneReader(TOPIC, tmp_path, "/dcsms/reader")
     assert [f.name for f in topic_dir(TOPIC, tmp_path).iterdir()] == [r.path.name]
     r.close()
     assert list(topic_dir(TOPIC, tmp_path).iterdir()) == []
+
+
+def test_a_reader_that_closes_is_counted_as_left_and_its_dds_end_gets_the_next_message(
+        tmp_path: Path) -> None:
+    """A reader removes its FIFO when it closes: the writer's next look closes that lane and
+    counts the reader as left; its DDS reader, still matched while its process goes, is then
+    served by DDS. The writer's own close counts nothing."""
+    r = LaneReader(TOPIC, tmp_path, "/dcsms/reader")
+    w = LaneWriter(TOPIC, tmp_path)
+    assert not w.dds(1, 0, 10) and len(w.lanes) == 1 and w.left == 0
+    r.close()
+    assert w.dds(1, 10**9, 10) and w.lanes == {} and w.left == 1
+    w.close()
+    assert w.left == 1
 
 
 def test_a_killed_writer_is_forgotten_by_its_reader(tmp_path: Path) -> None:

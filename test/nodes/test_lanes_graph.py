@@ -23,22 +23,28 @@ from dcsms_ros.ros.intraprocess import DirectPublisher
 from dcsms_ros.ros.laneinput import LANES, MIXED
 
 DCSMS = [sys.executable, "-m", "dcsms_ros.cli"]
-LINE = re.compile(r"lanes: (\S+): (\d+) messages on lanes, (\d+) on DDS, (\d+) lost")
+LINE = re.compile(r"lanes: (\S+): (\d+) messages on lanes, (\d+) on DDS "
+                  r"\((\d+) after a lane's reader left\), (\d+) lost")
 
 
 def _lane_lines(logs: Path) -> dict[str, tuple[int, int, int]]:
-    """Each writer's closing line: topic -> (on lanes, on DDS, lost)."""
+    """Each writer's closing line: topic -> (on lanes, on DDS before any lane's reader left,
+    lost)."""
     out: dict[str, tuple[int, int, int]] = {}
     for log in logs.glob("*.log"):
         for m in LINE.finditer(log.read_text()):
-            out[m.group(1)] = (int(m.group(2)), int(m.group(3)), int(m.group(4)))
+            out[m.group(1)] = (int(m.group(2)), int(m.group(3)) - int(m.group(4)),
+                               int(m.group(5)))
     return out
 
 
 def test_one_process_per_node_uses_lanes_and_dds_only_for_a_reader_without_one(ctx, tmp_path):
     """`dcsms up --realtime`, 3 s, with an outside DDS reader of one velocity: that topic goes
     on DDS too, every other per-sample topic on lanes only, and the outside reader gets the
-    samples once each."""
+    samples once each. A message a writer sends on DDS after a lane's reader left is not
+    counted against it: that reader's DDS end is matched until its process leaves DDS, and a
+    loaded host's controller still answered after the plant closed its lanes (1 force on DDS,
+    2 of ~10 runs beside two more such runs)."""
     probe = rclpy.create_node("lane_probe", context=ctx)
     stamps: list[int] = []
     probe.create_subscription(

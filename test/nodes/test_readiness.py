@@ -84,3 +84,39 @@ def test_a_node_announces_once_its_reader_matched_a_writer(ctx, cfg, role):
         ex.shutdown()
         node.destroy_node()
         listener.destroy_node()
+
+
+def test_an_observed_topic_holds_the_announcement_until_its_writer_matched_the_observer(ctx, cfg):
+    """With stage-1 velocity in ``wait_for_subscribers`` the decoupling, its input matched,
+    does not announce while no reader outside the graph exists; once one subscribes, it
+    announces only after its velocity writer matched that reader (a writer with host lanes
+    sends on DDS only to readers it matched: an outside reader the plant alone waited for got
+    samples from ~1.6 s of a 3 s run)."""
+    velocity = topics.velocity_topic("stage1")
+    node = SensorDecouplingNode(context=ctx, parameter_overrides=[
+        *overrides(cfg, schedule="realtime"), Parameter("wait_for_subscribers", value=[velocity])])
+    listener = rclpy.create_node("ready_listener", namespace=topics.NAMESPACE, context=ctx)
+    ready = ReadySet(listener, [DECOUPLING])
+    listener.create_publisher(JointState, topics.SENSORS_RAW, qos.stream_pub(False))
+    ex = executor_for(ctx, node, listener)
+    observer = None
+    try:
+        assert node.ready is not None
+        assert spin_until(ex, lambda: node.hot.unmatched() == [], 10.0), "input never matched"
+        assert not spin_until(ex, lambda: DECOUPLING in ready.roles, QUIET_S), \
+            "announced without an observer"
+        assert node.ready.missing() == [f"observer of {velocity}"]
+        observer = rclpy.create_node("velocity_probe", context=ctx)
+        observer.create_subscription(TwistStamped, velocity, lambda m: None,
+                                     qos.stream_pub(False))
+        ex.add_node(observer)
+        assert spin_until(ex, lambda: DECOUPLING in ready.roles, 10.0), "never announced"
+        writer = next(p for p in node.hot.writers if p.topic_name == velocity)
+        assert writer.get_subscription_count() >= 1
+        assert node.ready.missing() == []
+    finally:
+        node.hot.stop()
+        ex.shutdown()
+        for n in (node, listener, observer):
+            if n is not None:
+                n.destroy_node()
