@@ -3,6 +3,7 @@ destruction that hangs with the GIL held ends after the bound; a quick one leave
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 import time
@@ -16,19 +17,24 @@ from dcsms_ros.cli import deploy
 #: teardown of a node did in the middleware, docs/performance.md): its attachment is finished
 #: first, then the bounded teardown (patched to 1 s) ends it. With ``quick``: a node whose
 #: destruction is quick, and the process lives on for 2 s after its context is shut down.
+#: With ``stopped``: it hangs too, with the package's bound, and waits for a SIGINT.
 HUNG_TEARDOWN = r"""
 import ctypes, os, signal, sys, time
 from rclpy.node import Node
 from dcsms_ros.ros import context
 from dcsms_ros.ros.runtime import run
 
-context.TEARDOWN_BOUND_S = 1.0
-hang = sys.argv[1] == "hang"
+hang = sys.argv[1] in ("hang", "stopped")
+if sys.argv[1] != "stopped":
+    context.TEARDOWN_BOUND_S = 1.0
 
 class Node_(Node):
     def __init__(self, context):
         super().__init__("hung_teardown", context=context)
-        self.create_timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT))
+        if sys.argv[1] == "stopped":
+            print("up", flush=True)
+        else:
+            self.create_timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT))
 
     def destroy_node(self):
         print("destroy", flush=True)
@@ -79,3 +85,26 @@ def test_the_teardown_bound_ends_with_the_context(domain: int) -> None:
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split() == ["finish", "destroy", "alive"]
     assert "Timeout" not in out.stderr
+
+
+def test_a_hung_teardown_ends_itself_before_dcsms_up_would_abort_it(
+        domain: int, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """With the package's bound, a node that hangs in its teardown after ``dcsms up``'s SIGINT
+    ends itself within the SIGINT's timeout: it is reported as a teardown that did not end, not
+    as a process that did not stop (which says its data may be lost). A CI run of the lanes
+    test had mode_switch aborted 7 s after the SIGINT while the bound was 10 s."""
+    kid = deploy.Child("hung", [sys.executable, "-c", HUNG_TEARDOWN, "stopped"])
+    deploy.start([kid], tmp_path, verbose=False)
+    assert kid.proc is not None
+    log = tmp_path / "hung.log"
+    deadline = time.monotonic() + 30.0
+    while "up" not in log.read_text().split() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    t0 = time.monotonic()
+    deploy.stop([kid])
+    took = time.monotonic() - t0
+    assert kid.stopped_by is signal.SIGINT, (took, log.read_text())
+    assert kid.proc.returncode == 1
+    assert took < deploy.STOP_TIMEOUTS[0]
+    assert deploy.report_exits([kid]) == 1
+    assert "saved everything but its teardown did not end" in capsys.readouterr().err
