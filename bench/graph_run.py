@@ -71,7 +71,7 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
 
     ``on_running(kids)`` (e.g. a profiler attaching to ``kid.proc.pid``) is called once the
     plant steps."""
-    from dcsms_ros.cli import deploy
+    from dcsms_ros.cli import deploy, processes
     from dcsms_ros.cli.parts import RECORDER_PART, merge_parts, parts_dir
     from dcsms_ros.core.config import load_config
     from dcsms_ros.core.modes import Mode
@@ -94,12 +94,13 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     spec = spec.with_params("plant_simulator", timing_file=str(timing))
     params, graph_file = deploy.write_files(spec, run_dir)
     bag = run_dir / "bag"
-    rec: list[deploy.Child] = []
+    rec: list[processes.Child] = []
     parts = parts_dir(bag)
     if record in ("process", "parts"):
         out = parts / RECORDER_PART if streams else bag
-        rec = [deploy.Child("recorder", [*deploy.recorder_command(out, recorded, exclude=streams),
-                                         "--queue-depth", str(LOCKSTEP_WRITER_DEPTH)])]
+        argv = [*deploy.recorder_command(out, recorded, exclude=streams),
+                "--queue-depth", str(LOCKSTEP_WRITER_DEPTH)]
+        rec = [processes.Child("recorder", argv)]
     if composed:
         kids = [deploy.composed_child(graph_file, params, rt_priority,
                                       [str(bag), *recorded] if record == "composed" else ())]
@@ -110,8 +111,8 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
                           RECORD_TOPICS_ENV: " ".join(streams)})
     plant = kids[-1]
     with env(ROS_DOMAIN_ID=str(domain), DCSMS_HOT_PATH="1" if hot else "0"):
-        deploy.start(rec, run_dir, verbose=False)
-        deploy.start(kids, run_dir, verbose=False)
+        processes.start(rec, run_dir, verbose=False)
+        processes.start(kids, run_dir, verbose=False)
     try:
         assert plant.proc is not None and plant.log is not None
         deadline = time.monotonic() + timeout_s
@@ -139,9 +140,9 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
         if plant.proc.poll() is None:
             raise TimeoutError(f"{schedule} graph did not finish within {timeout_s:g} s")
     finally:
-        deploy.stop(kids, deploy.RECORDER_STOP_TIMEOUTS if record == "composed" else
-                    deploy.STOP_TIMEOUTS)
-        deploy.stop(rec, deploy.RECORDER_STOP_TIMEOUTS)
+        processes.stop_in_turn(kids, processes.RECORDER_STOP_TIMEOUTS if record == "composed" else
+                    processes.STOP_TIMEOUTS)
+        processes.stop(rec, processes.RECORDER_STOP_TIMEOUTS)
         if streams and merge_parts(parts, bag):
             raise RuntimeError(f"the parts in {parts} could not be merged")
     if plant.proc.returncode != 0 or not timing.exists():

@@ -11,30 +11,19 @@ Two deployments of the same nodes:
 
 Both read one params file (:meth:`GraphSpec.params_document`). A recorder (``--record``) runs as
 its own process, or inside the composed process (``recorder="composed"``, the default: it takes
-the messages from the process's bus, every one, without DDS). Stop: every process
-gets SIGINT, then SIGTERM, SIGABRT (a stuck process writes its threads' stacks into its log)
-and SIGKILL after timeouts; the graph first, so the recorder receives everything it published.
-Node logs go to files in ``log_dir`` unless ``verbose``.
-
-Every child runs in a session of its own (the terminal's Ctrl-C reaches only the parent, which
-stops them in order), so nothing the terminal does reaches it; if the parent dies without
-stopping them (SIGKILL, or a caller such as ``make bench`` interrupted, whose ``subprocess.run``
-kills it), the kernel sends each child SIGTERM (Linux ``PR_SET_PDEATHSIG``), its ordinary clean
-stop: no process is left behind, and a recorder still closes its bag.
+the messages from the process's bus, every one, without DDS). Stop: the graph's processes one at
+a time (:func:`~.processes.stop_in_turn`), then the recorder, so it receives everything the graph
+published. Node logs go to files in ``log_dir`` unless ``verbose``; how the processes are
+started and stopped is :mod:`.processes`.
 """
 
 from __future__ import annotations
 
-import ctypes
 import fnmatch
 import json
-import os
-import signal
-import subprocess
 import sys
-import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +31,15 @@ import yaml
 
 from dcsms_ros.analysis.gaps import read_published
 from dcsms_ros.cli.parts import RECORDER_PART, merge_parts, parts_dir, records_in_nodes
+from dcsms_ros.cli.processes import (
+    RECORDER_STOP_TIMEOUTS,
+    STOP_TIMEOUTS,
+    Child,
+    report_exits,
+    start,
+    stop,
+    stop_in_turn,
+)
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.errors import BagError
 from dcsms_ros.graph import (
@@ -53,14 +51,7 @@ from dcsms_ros.graph import (
 )
 from dcsms_ros.jsonutil import jsonable
 from dcsms_ros.protocols.runstats import RunSummary, summarize
-from dcsms_ros.rosenv import keep_discovery_local
 
-#: Seconds a process gets to exit after SIGINT, then after SIGTERM, before SIGKILL.
-STOP_TIMEOUTS = (5.0, 2.0)
-#: The same for the recorder, which writes its whole backlog first (recorder.DRAIN_MAX_S).
-RECORDER_STOP_TIMEOUTS = (40.0, 5.0)
-#: Seconds a child still running after both gets to write its threads' stacks (SIGABRT).
-ABORT_TIMEOUT_S = 2.0
 RECORDERS = ("process", "composed")
 #: Niceness of a recorder process beside a real-time graph: the observer yields the CPU to the
 #: control path's threads under the normal scheduler (its DDS reception above all, which is what
@@ -68,21 +59,6 @@ RECORDERS = ("process", "composed")
 #: stale forces 50-693 against 671-5,164 at 0, every pair lower, the bag as complete
 #: (docs/performance.md). Lockstep waits for its recorder, so there it keeps the parent's.
 RECORDER_NICE = 10
-
-
-@dataclass
-class Child:
-    """One process."""
-
-    name: str
-    argv: list[str]
-    log: Path | None = None
-    proc: subprocess.Popen[bytes] | None = None
-    env: dict[str, str] = field(default_factory=dict)
-    #: added to the process's niceness (0: the parent's)
-    nice: int = 0
-    #: the last signal :func:`stop` sent it
-    stopped_by: signal.Signals | None = None
 
 
 def node_argv(spec: GraphSpec, name: str, params_file: Path) -> list[str]:
@@ -133,83 +109,6 @@ def recorder_command(out: str | Path, topics: Sequence[str] | None = None,
     if duration_s is not None:
         cmd += ["--duration", repr(float(duration_s))]
     return cmd
-
-
-def child_env() -> dict[str, str]:
-    """Environment of the processes: localhost discovery, unbuffered, plain logs, and a
-    Python traceback in the log if one crashes in native code (a process that died of a
-    signal otherwise leaves nothing there: :func:`report_exits` names the signal)."""
-    env = dict(os.environ)
-    keep_discovery_local(env)
-    env["PYTHONUNBUFFERED"] = "1"
-    env.setdefault("PYTHONFAULTHANDLER", "1")
-    env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
-    return env
-
-
-#: ``prctl`` option: the signal a process gets when its parent dies (linux/prctl.h).
-PR_SET_PDEATHSIG = 1
-
-
-def _dies_with(parent: int, nice: int = 0) -> Callable[[], None] | None:
-    """A ``preexec_fn`` that makes the child get SIGTERM when process ``parent`` (the caller
-    of :func:`start`, from its calling thread) dies, and adds ``nice`` to its niceness; None
-    where ``prctl`` does not exist."""
-    if not sys.platform.startswith("linux"):
-        return None
-    prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before the fork
-
-    def arm() -> None:
-        prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
-        if os.getppid() != parent:  # it died before the line above
-            os.kill(os.getpid(), signal.SIGTERM)
-        if nice:
-            os.nice(nice)
-
-    return arm
-
-
-def start(kids: Sequence[Child], log_dir: Path, verbose: bool) -> None:
-    """Start every child in its own session (the terminal's Ctrl-C reaches only ``up``); each
-    gets SIGTERM if this process dies without stopping it (see the module notes)."""
-    env = child_env()
-    parent = os.getpid()
-    for kid in kids:
-        out: Any = None
-        if not verbose:
-            kid.log = log_dir / f"{kid.name}.log"
-            out = kid.log.open("wb")
-        # the preexec only makes one system call (prctl), safe in a forked child of a process
-        # with threads; the graph is started before `up` creates its rclpy context anyway
-        kid.proc = subprocess.Popen(kid.argv, stdout=out, stderr=subprocess.STDOUT if out else
-                                    None, stdin=subprocess.DEVNULL, env={**env, **kid.env},
-                                    start_new_session=True,
-                                    preexec_fn=_dies_with(parent, kid.nice))  # noqa: PLW1509
-        if out is not None:
-            out.close()
-
-
-def stop(kids: Sequence[Child], timeouts: tuple[float, float] = STOP_TIMEOUTS) -> None:
-    """SIGINT to every running child, then SIGTERM, then SIGABRT, then SIGKILL after the
-    timeouts. SIGABRT makes a stuck child's fault handler (``PYTHONFAULTHANDLER``, set by
-    :func:`child_env`) write every thread's stack into its log, so a hang can be told apart."""
-    for sig, timeout in ((signal.SIGINT, timeouts[0]), (signal.SIGTERM, timeouts[1]),
-                         (signal.SIGABRT, ABORT_TIMEOUT_S), (signal.SIGKILL, 5.0)):
-        alive = [k for k in kids if k.proc is not None and k.proc.poll() is None]
-        if not alive:
-            return
-        for k in alive:
-            k.stopped_by = sig
-            try:
-                k.proc.send_signal(sig)  # type: ignore[union-attr]
-            except ProcessLookupError:
-                pass
-        deadline = time.monotonic() + timeout
-        for k in alive:
-            try:
-                k.proc.wait(max(deadline - time.monotonic(), 0.0))  # type: ignore[union-attr]
-            except subprocess.TimeoutExpired:
-                pass
 
 
 @dataclass
@@ -297,7 +196,7 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     finally:
         # the graph first (composed with the recorder inside: its drain too), so the recorder
         # receives everything it published
-        stop(graph, RECORDER_STOP_TIMEOUTS if in_process or parts else STOP_TIMEOUTS)
+        stop_in_turn(graph, RECORDER_STOP_TIMEOUTS if in_process or parts else STOP_TIMEOUTS)
         stop(kids, RECORDER_STOP_TIMEOUTS)
     status = report_exits(graph + kids) or status
     if parts is not None and how.record is not None:
@@ -305,43 +204,6 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     if plant:
         report_summary(spec, plant, how.record, how.log_dir, how.composed, recorded_streams)
     return status
-
-
-def report_exits(kids: Sequence[Child]) -> int:
-    """One line on stderr for each stopped process that did not exit cleanly (a node that
-    failed while closing, or one killed after the stop timeouts: what it held back, its part
-    of the bag included, may be lost); 1 if there was one, else 0."""
-    status = 0
-    for kid in kids:
-        code = kid.proc.returncode if kid.proc is not None else None
-        if code in (0, None):
-            continue
-        how = (f"was killed by {signal.Signals(-code).name}" if code < 0 and
-               -code in signal.valid_signals() else f"exited with status {code}")
-        log = f"its log: {kid.log}"
-        if code == -signal.SIGABRT and kid.stopped_by is signal.SIGABRT:
-            how, log = "did not stop and was aborted", f"its threads' stacks are in {log}"
-        elif code == 1 and kid.log is not None and _teardown_timed_out(kid.log):
-            how = "saved everything but its teardown did not end in time, so it ended itself"
-            log = f"its threads' stacks are in {log}"
-        print(f"dcsms up: {kid.name} {how}" + (f" ({log})" if kid.log else ""),
-              file=sys.stderr, flush=True)
-        status = 1
-    return status
-
-
-def _teardown_timed_out(log: Path) -> bool:
-    """True if ``log`` ends with the stacks a node's bounded teardown writes when it runs
-    out (:meth:`dcsms_ros.ros.context.RosSession.bound_teardown`: faulthandler's
-    ``Timeout (h:mm:ss)!`` line, then the threads)."""
-    try:
-        with log.open("rb") as f:
-            f.seek(max(f.seek(0, os.SEEK_END) - 65536, 0))
-            tail = f.read().decode(errors="replace")
-    except OSError:
-        return False
-    return any(line.startswith("Timeout (") and line.rstrip().endswith(")!")
-               for line in tail.splitlines())
 
 
 def report_summary(spec: GraphSpec, plant: dict[str, str], bag: Path | None,
@@ -385,7 +247,6 @@ def bag_published(bag: Path) -> dict[str, int]:
     return read_published(_bag_info(bag).get("custom_data"))
 
 
-__all__ = ["RECORDERS", "Child", "Deployment", "bag_counts", "bag_published", "child_env",
-           "children", "composed_child", "node_argv",
-           "recorder_command", "report_exits", "report_summary",
-           "run_graph", "start", "stop", "write_files"]
+__all__ = ["RECORDERS", "Deployment", "bag_counts", "bag_published", "children",
+           "composed_child", "node_argv", "recorder_command", "report_summary", "run_graph",
+           "write_files"]

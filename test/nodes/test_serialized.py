@@ -93,6 +93,13 @@ def _spin(ex: MultiThreadedExecutor) -> Callable[[], None]:
     def stop() -> None:
         done.set()
         th.join(5.0)
+        # rclpy's MultiThreadedExecutor checks its callbacks' exceptions at its next spin only,
+        # and its thread pool outlives shutdown(): callbacks still queued there would run on
+        # the destroyed guard condition, their exceptions never fetched (printed when collected,
+        # inside a later test's capture). Let them finish first; raise what they raised.
+        ex._executor.shutdown(wait=True)
+        for task in ex._futures:
+            task.result()
         ex.shutdown(timeout_sec=2.0)
 
     return stop

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from dcsms_ros.cli import deploy
+from dcsms_ros.cli import processes
 
 #: A node process whose node's destruction blocks in C holding the GIL for 60 s (as rclpy's
 #: teardown of a node did in the middleware, docs/performance.md): its attachment is finished
@@ -61,9 +61,9 @@ def test_a_teardown_that_hangs_with_the_gil_held_ends_after_its_bound(
     """The node's part is finished, its destruction blocks holding the GIL (deaf to signals);
     faulthandler's timer ends the process 1 s later with status 1 and the threads' stacks in
     its log, and ``dcsms up`` says so in one line."""
-    kid = deploy.Child("hung", [sys.executable, "-c", HUNG_TEARDOWN, "hang"])
+    kid = processes.Child("hung", [sys.executable, "-c", HUNG_TEARDOWN, "hang"])
     t0 = time.monotonic()
-    deploy.start([kid], tmp_path, verbose=False)
+    processes.start([kid], tmp_path, verbose=False)
     assert kid.proc is not None
     assert kid.proc.wait(timeout=50) == 1
     assert time.monotonic() - t0 < 30.0  # not the 60 s of the hang
@@ -71,7 +71,7 @@ def test_a_teardown_that_hangs_with_the_gil_held_ends_after_its_bound(
     assert text.split("\n")[:2] == ["finish", "destroy"], text
     assert "Timeout (0:00:01)!" in text and "in destroy_node" in text, text
     assert "alive" not in text
-    assert deploy.report_exits([kid]) == 1
+    assert processes.report_exits([kid]) == 1
     assert capsys.readouterr().err.strip() == (
         f"dcsms up: hung saved everything but its teardown did not end in time, so it ended "
         f"itself (its threads' stacks are in its log: {tmp_path / 'hung.log'})")
@@ -93,18 +93,18 @@ def test_a_hung_teardown_ends_itself_before_dcsms_up_would_abort_it(
     ends itself within the SIGINT's timeout: it is reported as a teardown that did not end, not
     as a process that did not stop (which says its data may be lost). A CI run of the lanes
     test had mode_switch aborted 7 s after the SIGINT while the bound was 10 s."""
-    kid = deploy.Child("hung", [sys.executable, "-c", HUNG_TEARDOWN, "stopped"])
-    deploy.start([kid], tmp_path, verbose=False)
+    kid = processes.Child("hung", [sys.executable, "-c", HUNG_TEARDOWN, "stopped"])
+    processes.start([kid], tmp_path, verbose=False)
     assert kid.proc is not None
     log = tmp_path / "hung.log"
     deadline = time.monotonic() + 30.0
     while "up" not in log.read_text().split() and time.monotonic() < deadline:
         time.sleep(0.05)
     t0 = time.monotonic()
-    deploy.stop([kid])
+    processes.stop([kid])
     took = time.monotonic() - t0
     assert kid.stopped_by is signal.SIGINT, (took, log.read_text())
     assert kid.proc.returncode == 1
-    assert took < deploy.STOP_TIMEOUTS[0]
-    assert deploy.report_exits([kid]) == 1
+    assert took < processes.STOP_TIMEOUTS[0]
+    assert processes.report_exits([kid]) == 1
     assert "saved everything but its teardown did not end" in capsys.readouterr().err

@@ -25,7 +25,8 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from dcsms_ros.cli.deploy import Child, child_env, children, stop
+from dcsms_ros.cli.deploy import children
+from dcsms_ros.cli.processes import Child, child_env, stop
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode

@@ -1,6 +1,7 @@
-"""No child of a deployment outlives its parent: a parent killed with SIGKILL (no clean-up of
-its own, as `make bench` interrupted kills `dcsms up`) leaves no process behind, and the
-recorder it started still closes its bag (SIGTERM is its clean stop)."""
+"""The processes a deployment starts (cli/processes.py): no child outlives its parent (a parent
+killed with SIGKILL, as `make bench` interrupted kills `dcsms up`, leaves no process behind, and
+the recorder it started still closes its bag: SIGTERM is its clean stop), how each one ended is
+reported, a stuck one is aborted with its stacks, and the graph stops one process at a time."""
 
 from __future__ import annotations
 
@@ -14,20 +15,20 @@ from pathlib import Path
 
 import pytest
 
-from dcsms_ros.cli import deploy
+from dcsms_ros.cli import processes
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
-#: The parent: starts a recorder and an idle child through deploy.start, prints their pids,
+#: The parent: starts a recorder and an idle child through processes.start, prints their pids,
 #: then waits to be killed.
 PARENT = r"""
 import json, sys, time
 from pathlib import Path
-from dcsms_ros.cli import deploy
+from dcsms_ros.cli import deploy, processes
 out = Path(sys.argv[1])
-kids = [deploy.Child("recorder", deploy.recorder_command(out / "bag", ["/reap/*"])),
-        deploy.Child("idle", [sys.executable, "-c", "import time; time.sleep(120)"])]
-deploy.start(kids, out, verbose=False)
+kids = [processes.Child("recorder", deploy.recorder_command(out / "bag", ["/reap/*"])),
+        processes.Child("idle", [sys.executable, "-c", "import time; time.sleep(120)"])]
+processes.start(kids, out, verbose=False)
 print(json.dumps([k.proc.pid for k in kids]), flush=True)
 time.sleep(120)
 """
@@ -79,8 +80,8 @@ def test_a_child_runs_at_the_niceness_it_asks(nice: int, tmp_path: Path) -> None
     """`Child.nice` adds to the child's niceness (a real-time run's recorder: +10), and only
     to that child."""
     probe = [sys.executable, "-c", "import os; print(os.nice(0))"]
-    kids = [deploy.Child("asked", probe, nice=nice), deploy.Child("plain", probe)]
-    deploy.start(kids, tmp_path, verbose=False)
+    kids = [processes.Child("asked", probe, nice=nice), processes.Child("plain", probe)]
+    processes.start(kids, tmp_path, verbose=False)
     for k in kids:
         assert k.proc is not None and k.proc.wait(30) == 0
     base = os.nice(0)
@@ -97,17 +98,17 @@ def test_every_process_that_did_not_exit_cleanly_is_named(
     """After the stop, a process that failed while closing, crashed or was killed gets one
     line each and the run's status 1; clean exits say nothing. A native crash leaves a Python
     traceback in the process's log."""
-    kids = [deploy.Child("clean", [sys.executable, "-c", "pass"]),
-            deploy.Child("failed", [sys.executable, "-c", "raise SystemExit(3)"]),
-            deploy.Child("killed", [sys.executable, "-c", "import time; time.sleep(60)"]),
-            deploy.Child("crashed", [sys.executable, "-c", CRASH])]
-    deploy.start(kids, tmp_path, verbose=False)
+    kids = [processes.Child("clean", [sys.executable, "-c", "pass"]),
+            processes.Child("failed", [sys.executable, "-c", "raise SystemExit(3)"]),
+            processes.Child("killed", [sys.executable, "-c", "import time; time.sleep(60)"]),
+            processes.Child("crashed", [sys.executable, "-c", CRASH])]
+    processes.start(kids, tmp_path, verbose=False)
     assert kids[2].proc is not None
     kids[2].proc.kill()
     for k in kids:
         assert k.proc is not None
         k.proc.wait(30.0)
-    assert deploy.report_exits(kids) == 1
+    assert processes.report_exits(kids) == 1
     err = capsys.readouterr().err.splitlines()
     logs = {k.name: tmp_path / f"{k.name}.log" for k in kids}
     assert err == [f"dcsms up: failed exited with status 3 (its log: {logs['failed']})",
@@ -115,7 +116,7 @@ def test_every_process_that_did_not_exit_cleanly_is_named(
                    f"dcsms up: crashed was killed by SIGSEGV (its log: {logs['crashed']})"]
     crash = logs["crashed"].read_text()
     assert "Segmentation fault" in crash and "in native" in crash, crash
-    assert deploy.report_exits(kids[:1]) == 0
+    assert processes.report_exits(kids[:1]) == 0
     assert capsys.readouterr().err == ""
 
 
@@ -130,19 +131,59 @@ def test_a_child_that_does_not_stop_leaves_its_stacks_in_its_log(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A child that ignores SIGINT and SIGTERM is aborted before it is killed: its fault
     handler writes where each of its threads waited into its log, and the report says so."""
-    kid = deploy.Child("stuck", [sys.executable, "-c", STUCK])
-    deploy.start([kid], tmp_path, verbose=False)
+    kid = processes.Child("stuck", [sys.executable, "-c", STUCK])
+    processes.start([kid], tmp_path, verbose=False)
     log = tmp_path / "stuck.log"
     end = time.monotonic() + 30.0
     while "ready" not in log.read_text() and time.monotonic() < end:
         time.sleep(0.05)
     t0 = time.monotonic()
-    deploy.stop([kid], (0.5, 0.5))
+    processes.stop([kid], (0.5, 0.5))
     assert kid.proc is not None and kid.proc.returncode == -signal.SIGABRT
-    assert time.monotonic() - t0 < 0.5 + 0.5 + deploy.ABORT_TIMEOUT_S + 1.0
+    assert time.monotonic() - t0 < 0.5 + 0.5 + processes.ABORT_TIMEOUT_S + 1.0
     text = log.read_text()
     assert "Fatal Python error: Aborted" in text and "in stuck" in text, text
-    assert deploy.report_exits([kid]) == 1
+    assert processes.report_exits([kid]) == 1
     assert capsys.readouterr().err.strip() == (
         f"dcsms up: stuck did not stop and was aborted (its threads' stacks are in its log: "
         f"{log})")
+
+
+#: A child that, on SIGINT, notes when it started stopping, takes 0.3 s, notes when it ended.
+SLOW_STOP = r"""
+import signal, sys, time
+def stop(*_):
+    with open(sys.argv[1], "a") as f:
+        f.write(f"{sys.argv[2]} begin {time.monotonic()}\n")
+    time.sleep(0.3)
+    with open(sys.argv[1], "a") as f:
+        f.write(f"{sys.argv[2]} end {time.monotonic()}\n")
+    sys.exit(0)
+signal.signal(signal.SIGINT, stop)
+print("up", flush=True)
+time.sleep(60)
+"""
+
+
+def test_stop_in_turn_stops_each_child_after_the_one_started_after_it_exited(
+        tmp_path: Path) -> None:
+    """The graph stops one process at a time, in reverse start order: each begins its stop
+    only after the one before it ended (a participant deleted while another process deletes
+    its endpoints can hang in Fast DDS 2.14), and each exits cleanly."""
+    notes = tmp_path / "notes"
+    kids = [processes.Child(n, [sys.executable, "-c", SLOW_STOP, str(notes), n])
+            for n in ("first", "second", "third")]
+    processes.start(kids, tmp_path, verbose=False)
+    deadline = time.monotonic() + 30.0
+    while not all((tmp_path / f"{k.name}.log").read_text().strip() == "up" for k in kids):
+        assert time.monotonic() < deadline, "the children did not start"
+        time.sleep(0.05)
+    processes.stop_in_turn(kids)
+    rows = [line.split() for line in notes.read_text().splitlines()]
+    assert [(r[0], r[1]) for r in rows] == [
+        ("third", "begin"), ("third", "end"), ("second", "begin"), ("second", "end"),
+        ("first", "begin"), ("first", "end")]
+    times = [float(r[2]) for r in rows]
+    assert times == sorted(times)
+    assert all(k.proc is not None and k.proc.returncode == 0 for k in kids)
+    assert processes.report_exits(kids) == 0
