@@ -26,7 +26,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from dcsms_ros.cli.deploy import children
-from dcsms_ros.cli.processes import Child, child_env, stop
+from dcsms_ros.cli.processes import Child, child_env, stop_in_turn
 from dcsms_ros.core import topics
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode
@@ -147,13 +147,14 @@ class Graph:
         return "\n".join(p.read_text(errors="replace") for p in self.tmp.glob("*.log"))
 
     def stop(self) -> dict[str, int | None]:
-        """SIGINT every node (after SIGCONT), as ``dcsms up`` stops it; exit status per node.
+        """SIGINT the nodes one at a time (after SIGCONT), as ``dcsms up`` stops them; exit
+        status per node.
         A node still running 10 s later is aborted, and the stacks its fault handler wrote
         are printed (pytest shows them with a failure)."""
         alive = [k for k in self.kids.values() if k.proc and k.proc.poll() is None]
         for k in alive:
             os.kill(k.proc.pid, signal.SIGCONT)  # type: ignore[union-attr]
-        stop(alive, (10.0, 1.0))
+        stop_in_turn(alive, (10.0, 1.0))
         for k in alive:
             if k.stopped_by is not signal.SIGINT and k.log is not None:
                 print(f"--- {k.name} did not stop after SIGINT (exit {k.proc.returncode}); "  # type: ignore[union-attr]
