@@ -15,7 +15,7 @@ Three questions are asked of the graph before and while it runs, by the plant (b
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass
 
 from rclpy.node import Node
@@ -82,17 +82,27 @@ def writer_matched(node: Node, pub: SamplePublisher) -> bool:
     return pub.get_subscription_count() >= node.count_subscribers(pub.topic_name)
 
 
-def publishers_matched(node: Node, pubs: Sequence[SamplePublisher],
-                       observed: Sequence[str]) -> bool:
-    """True when each publisher has matched every reader this node's graph view shows, and
-    each observed topic among them has a reader outside the graph."""
+def unmatched_publishers(node: Node, pubs: Iterable[SamplePublisher],
+                         observed: Collection[str]) -> list[str]:
+    """What keeps ``pubs`` from :func:`publishers_matched`: the topic of each publisher that
+    has not matched every reader this node's graph view shows, ``observer of <topic>`` for an
+    observed topic among them without a reader outside the graph."""
+    out: list[str] = []
     for pub in pubs:
         if not writer_matched(node, pub):
-            return False
-        if pub.topic_name in observed and not outside_graph(node, pub.topic_name):
-            return False
-    return True
+            out.append(pub.topic_name)
+        elif pub.topic_name in observed and not outside_graph(node, pub.topic_name):
+            out.append(f"observer of {pub.topic_name}")
+    return out
+
+
+def publishers_matched(node: Node, pubs: Sequence[SamplePublisher],
+                       observed: Collection[str]) -> bool:
+    """True when each publisher has matched every reader this node's graph view shows, and
+    each observed topic among them has a reader outside the graph."""
+    return not unmatched_publishers(node, pubs, observed)
 
 
 __all__ = ["GRAPH_NODES", "UNKNOWN_NODE", "End", "control_path", "has_reader", "in_graph",
-           "missing_ends", "outside_graph", "publishers_matched", "writer_matched"]
+           "missing_ends", "outside_graph", "publishers_matched", "unmatched_publishers",
+           "writer_matched"]

@@ -74,10 +74,10 @@ POLL_S = 0.1
 HOST_POLL_S = 1.0
 #: How long a node process's teardown may take once it saved what it must
 #: (:meth:`RosSession.bound_teardown`), s: a normal one takes 30-40 ms (mode_switch, one process
-#: per node). Below ``dcsms up``'s 5 s between its SIGINT and its SIGTERM (five nodes stopped
-#: together saved and exited within 0.17 s of it, on a host running a CI), so a hung teardown is
-#: reported as one, not as a process that did not stop: at 10 s a CI run's mode_switch, hung
-#: there, was aborted after 7 s.
+#: per node). Below ``dcsms up``'s 5 s between its SIGINT and its SIGTERM (a node saves and
+#: exits in ~0.17 s of it: five stopped in turn took 0.83 s), so a hung teardown is reported as
+#: one, not as a process that did not stop: at 10 s a CI run's mode_switch, hung there, was
+#: aborted after 7 s.
 TEARDOWN_BOUND_S = 3.0
 
 

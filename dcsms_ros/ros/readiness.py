@@ -33,7 +33,7 @@ from std_msgs.msg import Bool
 from dcsms_ros.core import topics
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
-from dcsms_ros.ros.connectivity import outside_graph, writer_matched
+from dcsms_ros.ros.connectivity import unmatched_publishers
 from dcsms_ros.ros.hotpath import HotPath
 
 #: Seconds between two checks of a node's matches until it announced.
@@ -69,13 +69,8 @@ class ReadyAnnouncer:
         """The ends not matched yet: topics of readers without a writer, of writers that have
         not matched every reader the node sees, ``observer of <topic>`` for an observed topic
         the node sees no outside reader of."""
-        out = self.hot.unmatched()
-        for p in self.hot.writers:
-            if not writer_matched(self.node, p):
-                out.append(p.topic_name)
-            elif p.topic_name in self.observed and not outside_graph(self.node, p.topic_name):
-                out.append(f"observer of {p.topic_name}")
-        return out
+        return self.hot.unmatched() + unmatched_publishers(self.node, self.hot.writers,
+                                                           self.observed)
 
     def check(self) -> bool:
         """Announce if every end is matched; True once announced."""
