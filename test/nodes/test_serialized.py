@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import Int64
@@ -41,8 +42,14 @@ class Probe(Node, Hosted):
         self.suspended = False
         self.hot.subscribe(Int64, "probe_in", self._on_msg, qos.stream_sub(True))
         self.create_timer(0.001, self._on_timer)
-        self.create_service(Trigger, "busy", self._on_busy)
-        self.create_service(Trigger, "slow", self._on_slow)
+        # The services are not in the timer's group: the timer (busy longer than its period) is
+        # always ready, and a multi-threaded executor hands a group to whichever of its ready
+        # entities' threads asks first, nearly always the timer's: a service in its group
+        # waited 0.8 s (median) to 6 s for its turn on an idle machine (CI: 5 s, a failure).
+        self.create_service(Trigger, "busy", self._on_busy,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_service(Trigger, "slow", self._on_slow,
+                            callback_group=MutuallyExclusiveCallbackGroup())
         self.hot.start()
 
     def _busy(self) -> None:
