@@ -197,3 +197,90 @@ def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, nois
         for j in range(x.shape[0]):
             x[j] = ax[j] + bu[j]
     return k1
+
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def plant_sample(mats, x, work, geo, pinvs, limits, counters, wrench, stage, excite,  # type: ignore[no-untyped-def]
+                 g_rows, d_rows, n_rows, r, rn, applied):
+    """``PlantSimulator.advance`` of the sample at input row ``r`` (skipped if negative), then
+    ``truth`` and ``measure`` of the sample at row ``rn`` (skipped if negative); returns the
+    number of non-finite inputs (each skipped as the object skips it).
+
+    ``mats``: (A, B, C, chan); ``x`` the plant's state; ``work`` the scratch, laid out
+    ``y | ax | bu | u | truth (N+1)*dof | readings n_ch | totals N*dof | forces n_act``;
+    ``geo`` the geophone filter's (b0, b1, b2, a1, a2, z); ``pinvs``, ``limits`` (N,) the
+    allocators'; ``counters[1]`` the saturations; ``wrench`` (nc, dof) the controllers' in
+    summation order, ``stage`` (nc,) their stage rows; ``excite`` (N, dof; 0 x 0: none);
+    ``g_rows``, ``d_rows``, ``n_rows``: ground (m, dof), table wrenches (m, N*dof), geophone
+    noise (m, n_ch or 0) of the drawn samples; ``applied`` (n_act,) the forces applied."""
+    a_m, b_m, c_m, chan = mats
+    gb0, gb1, gb2, ga1, ga2, gz = geo
+    dof = g_rows.shape[1]
+    nst = limits.shape[0]
+    nx = x.shape[0]
+    n_out = c_m.shape[0]
+    n_in = b_m.shape[1]
+    nch = chan.shape[0]
+    o_ax = n_out
+    o_bu = o_ax + nx
+    o_u = o_bu + nx
+    o_t = o_u + n_in
+    o_c = o_t + (nst + 1) * dof
+    o_tot = o_c + nch
+    o_f = o_tot + nst * dof
+    y, ax, bu, u = work[:n_out], work[o_ax:o_bu], work[o_bu:o_u], work[o_u:o_t]
+    truthv, chv = work[o_t:o_c], work[o_c:o_tot]
+    totals = work[o_tot:o_f].reshape(nst, dof)
+    bad = 0
+    if r >= 0:
+        totals[:] = 0.0
+        for c in range(wrench.shape[0]):
+            if not _finite(wrench[c]):
+                bad += 1
+                continue
+            for j in range(dof):
+                totals[stage[c], j] += wrench[c, j]
+        if excite.shape[0] == nst:
+            ok = True
+            for i in range(nst):
+                ok = ok and _finite(excite[i])
+            if ok:
+                for i in range(nst):
+                    for j in range(dof):
+                        totals[i, j] += excite[i, j]
+            else:
+                bad += 1
+        for j in range(dof):
+            u[j] = g_rows[r, j]
+        pos = dof
+        o = o_f
+        for i in range(nst):
+            n_act = pinvs[i].shape[0]
+            f = work[o:o + n_act]
+            np.dot(pinvs[i], totals[i], f)
+            counters[1] += _clip(f, limits[i])
+            for j in range(n_act):
+                u[pos + j] = f[j]
+            pos += n_act
+            o += n_act
+        for j in range(pos - dof):
+            applied[j] = u[dof + j]
+        for j in range(d_rows.shape[1]):
+            u[pos + j] = d_rows[r, j]
+        np.dot(a_m, x, ax)
+        np.dot(b_m, u, bu)
+        for j in range(nx):
+            x[j] = ax[j] + bu[j]
+    if rn >= 0:
+        np.dot(c_m, x, y)
+        for j in range(dof):
+            truthv[j] = g_rows[rn, j]
+        for j in range(n_out):
+            truthv[dof + j] = y[j]
+        np.dot(chan, truthv, chv)
+        _sos(gb0, gb1, gb2, ga1, ga2, gz, chv)
+        if n_rows.shape[1] == nch:
+            for j in range(nch):
+                chv[j] += n_rows[rn, j]
+    return bad

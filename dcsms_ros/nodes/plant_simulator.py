@@ -9,7 +9,8 @@ graph's namespace). Two schedules (parameter ``schedule``):
   stamped k (and, with ``trip_gate``, mode_switch's verdict on a trip checkpoint ending at k:
   ``trip/check`` asks once the forces of k are in, ``trip/checked`` answers). The same
   :class:`~dcsms_ros.core.simulator.PlantSimulator` calls happen in the same order as in
-  :func:`dcsms_ros.core.engine.simulate`, so the trajectory is the batch engine's bit for bit.
+  :func:`dcsms_ros.core.engine.simulate`, so the trajectory is the batch engine's bit for bit
+  (with numba, the same operations compiled: :mod:`dcsms_ros.core.compiledplant`).
   Timeouts, *absent* participants and retransmission are the barrier's. ``hold_at_s`` stops the
   plant before a sample until the parameter changes (mode schedules).
 * ``realtime`` - the :class:`~dcsms_ros.protocols.pacer.Pacer` steps the plant on the wall
@@ -35,9 +36,9 @@ from std_msgs.msg import Header
 
 from dcsms_ros.cdr import WRENCH_STAMPED, read_frame, read_header, read_stamped
 from dcsms_ros.core import topics
+from dcsms_ros.core.compiledplant import plant_simulator
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import ControllerId
-from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.core.trip import check_samples
 from dcsms_ros.nodes import plant_simulator_io as plant_io
 from dcsms_ros.nodes import recorder_part
@@ -76,7 +77,7 @@ class PlantSimulatorNode(GraphNode, Hosted):
         # plant adds its wrench after the controllers' (as the batch engine's excite=)
         self.controllers = list(opts.controllers) + ([topics.EXCITATION_ID]
                                                      if opts.excitation else [])
-        self.sim = PlantSimulator(cfg, ground=replayed_ground(opts.ground_from, cfg))
+        self.sim = plant_simulator(cfg, ground=replayed_ground(opts.ground_from, cfg))
         self.force_guard = InputGuard(self, "force command", FORCE_LIMIT_FACTOR * max(
             a.limit for a in self.sim.allocators))
         self.dof, self.rate = cfg.plant.dof, cfg.plant.rate_hz
