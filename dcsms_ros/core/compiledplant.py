@@ -2,18 +2,18 @@
 
 A graph's plant steps one sample per call: :meth:`.PlantSimulator.measure` and
 :meth:`.PlantSimulator.advance` are some fifty numpy calls on arrays of a few elements,
-~18 us a sample on table1, ~18 % of the composed lockstep step (py-spy, 2026-12-03).
-:class:`CompiledPlant` runs the same floating-point operations in the same order in two
-compiled kernels (:func:`.fastloop.measure_sample`, :func:`.fastloop.advance_sample`: the
-plant part of the batch engine's fused loop, which is bit-identical to the object path), and
+~21 us a sample on table1, ~18 % of the composed lockstep step (py-spy, 2026-12-03).
+:class:`CompiledPlant` runs the same floating-point operations in the same order in one
+compiled kernel call a sample (:func:`.fastloop.plant_sample`: the plant part of the batch
+engine's fused loop, which is bit-identical to the object path; 6.6 us a sample), and
 draws the disturbances and the geophone noise in blocks (:meth:`.Disturbances.block`,
 :meth:`.GeophoneArray.noise_block`: the same values as sample by sample). What differs: the
 readings :meth:`measure` returns are a buffer of the plant's (valid until the next sample),
 and a replayed ground's end is warned about when its block is drawn.
 
 :func:`plant_simulator` builds one when numba is there (:func:`.fastsim.available`), else a
-:class:`.PlantSimulator`; the kernels are compiled (or loaded from numba's cache) when it is
-built, not at the first sample.
+:class:`.PlantSimulator`; the kernel is compiled (~2 s, once after an install) or loaded from
+numba's cache (~0.3 s with numba's import) when it is built, not at the first sample.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcsms_ros.core.config import SystemConfig
-from dcsms_ros.core.fastsim import _mat, available
+from dcsms_ros.core.fastsim import available, gemv_layout
 from dcsms_ros.core.simulator import PlantSimulator
 
 Array = NDArray[np.float64]
@@ -39,6 +39,11 @@ class CompiledPlant(PlantSimulator):
     the same parameters, values and counters. One kernel call a sample: the advance of
     sample k and the readings of sample k+1."""
 
+    # what a call that only measures passes for the advance's arguments
+    _no_rows = np.zeros((0, 1))
+    _no_stage = np.zeros(0, np.int64)
+    _no_applied = np.zeros(0)
+
     def __init__(self, cfg: SystemConfig, **kwargs: Any) -> None:
         from dcsms_ros.core.fastloop import plant_sample  # noqa: PLC0415 - optional: numba
 
@@ -47,14 +52,14 @@ class CompiledPlant(PlantSimulator):
         super().__init__(cfg, **kwargs)
         p, chan = self.plant, self.channel_matrix
         nst, dof = cfg.plant.num_stages, self.dof
-        self._mats = (p.a, p.b, p.c, _mat(chan))
+        self._mats = (p.a, p.b, p.c, gemv_layout(chan))
         o_t = p.c.shape[0] + 2 * p.a.shape[0] + p.n_inputs  # the kernel's scratch layout
         o_c = o_t + (nst + 1) * dof
         self._work = np.zeros(o_c + chan.shape[0] + nst * dof + self._n_act)
         self._truth = self._work[o_t:o_c].reshape(nst + 1, dof)
         self._readings = self._work[o_c:o_c + chan.shape[0]]
         self._geo = tuple(self.geophones.filter.arrays)
-        self._pinvs = tuple(_mat(a.pinv) for a in self.allocators)
+        self._pinvs = tuple(gemv_layout(a.pinv) for a in self.allocators)
         self._limits = np.array([a.limit for a in self.allocators])
         self._counters = np.zeros(2, np.int64)
         self._no_excite = np.zeros((0, 0))
@@ -116,10 +121,6 @@ class CompiledPlant(PlantSimulator):
                        self._no_applied)
             self._raw = self._readings
         return self._raw
-
-    _no_rows = np.zeros((0, 1))
-    _no_stage = np.zeros(0, np.int64)
-    _no_applied = np.zeros(0)
 
     def _wrench_rows(self, wrenches: Mapping[str, Any]) -> tuple[Array, NDArray[np.int64]]:
         """The wrenches as rows in their order, and each one's stage row."""

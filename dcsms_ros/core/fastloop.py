@@ -284,3 +284,19 @@ def plant_sample(mats, x, work, geo, pinvs, limits, counters, wrench, stage, exc
             for j in range(nch):
                 chv[j] += n_rows[rn, j]
     return bad
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def decouple_sample(ext, starts, pinvs, vext, raw, out):  # type: ignore[no-untyped-def]
+    """``Decoupler.step`` of one sample whose readings ``raw`` (n_ch,) are all finite: the
+    extension filter ``ext`` (b0, b1, b2, a1, a2, z) into ``vext``, then each body's
+    ``pinvs[b]`` times its channels ``starts[b]:starts[b+1]`` into ``out[b]``; returns False
+    (nothing done) if a reading is not finite."""
+    if not _finite(raw):
+        return False
+    eb0, eb1, eb2, ea1, ea2, ez = ext
+    vext[:] = raw
+    _sos(eb0, eb1, eb2, ea1, ea2, ez, vext)
+    for b in range(starts.shape[0] - 1):
+        np.dot(pinvs[b], vext[starts[b]:starts[b + 1]], out[b])
+    return True

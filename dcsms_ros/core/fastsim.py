@@ -59,7 +59,7 @@ def _c(a: Any, dtype: Any = np.float64) -> Any:
     return np.ascontiguousarray(a, dtype=dtype)
 
 
-def _mat(a: Any) -> Any:
+def gemv_layout(a: Any) -> Any:
     """A matrix in the memory layout the object multiplies with (numpy picks the BLAS ``gemv``
     variant from it, so keeping C or Fortran order keeps the products bit-identical)."""
     a = np.asarray(a, dtype=np.float64)
@@ -101,14 +101,14 @@ class FastLoop:
         p = sim.plant
         n_out, nx = p.c.shape
         chan = sim.channel_matrix
-        self.plant = (p.a, p.b, p.c, _mat(chan), p.x, np.zeros(n_out), np.zeros(nx),
+        self.plant = (p.a, p.b, p.c, gemv_layout(chan), p.x, np.zeros(n_out), np.zeros(nx),
                       np.zeros(nx), np.zeros(p.n_inputs), np.zeros(chan.shape[1]),
                       np.zeros(chan.shape[0]))
         self.geo = tuple(sim.geophones.filter.arrays)
         self.ext = tuple(dec.extension.arrays)
         blocks = dec.blocks
         starts = [sl.start for sl, _ in blocks] + [blocks[-1][0].stop]
-        self.dec = (np.asarray(starts, np.int64), tuple(_mat(m) for _, m in blocks),
+        self.dec = (np.asarray(starts, np.int64), tuple(gemv_layout(m) for _, m in blocks),
                     tuple(np.zeros(sl.stop - sl.start) for sl, _ in blocks),
                     np.zeros(chan.shape[0]))
         loops = list(ctrls.values())
@@ -116,8 +116,8 @@ class FastLoop:
         self.ctl = (*(tuple(f[j] for f in filt) for j in range(6)),
                     tuple(c.saved_state for c in loops),
                     tuple(_c(c.axes, np.int64) for c in loops),
-                    tuple(_mat(c.allocator.pinv) for c in loops),
-                    tuple(_mat(c.allocator.b) for c in loops),
+                    tuple(gemv_layout(c.allocator.pinv) for c in loops),
+                    tuple(gemv_layout(c.allocator.b) for c in loops),
                     tuple(np.zeros(len(c.axes)) for c in loops),
                     tuple(np.zeros(c.allocator.n_act) for c in loops),
                     np.array([c.allocator.limit for c in loops]),
@@ -128,7 +128,7 @@ class FastLoop:
                      np.array([c.fader.count for c in loops], np.int64),
                      np.array([c.fader.target for c in loops], np.int64))
         self.counters = np.zeros(2, np.int64)
-        self.alloc = (tuple(_mat(a.pinv) for a in sim.allocators),
+        self.alloc = (tuple(gemv_layout(a.pinv) for a in sim.allocators),
                       np.array([a.limit for a in sim.allocators]),
                       tuple(np.zeros(a.n_act) for a in sim.allocators),
                       np.zeros((len(sim.allocators), sim.dof)), self.counters)
@@ -185,4 +185,4 @@ class FastLoop:
         self.sim.saturations = int(self.counters[1])
 
 
-__all__ = ["BLOCK", "FastLoop", "Inputs", "available", "sosfilt"]
+__all__ = ["BLOCK", "FastLoop", "Inputs", "available", "gemv_layout", "sosfilt"]

@@ -1,7 +1,8 @@
 """Sensor-decoupling node: raw geophone channels -> one twist per body.
 
 Subscribes to ``/dcsms/sensors/raw`` (``sensor_msgs/JointState``, ``velocity`` m/s), runs
-:class:`~dcsms_ros.core.decoupling.Decoupler` once per sample and publishes
+:class:`~dcsms_ros.core.decoupling.Decoupler` once per sample (with numba compiled, the same
+numbers: :mod:`dcsms_ros.core.compileddecoupler`) and publishes
 ``/dcsms/velocity/<body>`` (``geometry_msgs/TwistStamped``, frame_id = body) with the sample's
 stamp; both sides as serialized CDR (:mod:`dcsms_ros.cdr`). A repeated stamp (lockstep
 retransmission) is answered from the cache without stepping the filters again; an older stamp
@@ -24,7 +25,7 @@ from sensor_msgs.msg import JointState
 
 from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, StampedWriter
 from dcsms_ros.core import topics
-from dcsms_ros.core.decoupling import Decoupler
+from dcsms_ros.core.compileddecoupler import decoupler
 from dcsms_ros.nodes import recorder_part
 from dcsms_ros.protocols.responder import skipped
 from dcsms_ros.ros import qos
@@ -58,7 +59,7 @@ class SensorDecouplingNode(GraphNode, Hosted):
         cfg = self.params.cfg
         lockstep = declare_schedule(self) == "lockstep"
         self.observed = declare_observed(self)
-        self.dec = Decoupler(cfg)
+        self.dec = decoupler(cfg)
         self.guard = InputGuard(self, "raw sensor channels", MAX_VELOCITY_MPS)
         self.dof = cfg.plant.dof
         self.bodies = topics.body_names(cfg.plant.num_stages)
