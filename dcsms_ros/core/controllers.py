@@ -233,9 +233,7 @@ class _Loop:
         x = np.asarray(twist, dtype=np.float64).tolist()
         fade = self.fader.step()
         if not all(map(math.isfinite, x)):
-            self.nonfinite += 1
-            self.last_saturated = 0
-            return np.zeros(self.dof)
+            return self._rejected()
         self._saved_flat[:] = self._state_flat  # get_state(saved) without the numpy call
         filt, axes = self._filter, self._axes_list
         u = [x[a] for a in axes]
@@ -247,6 +245,18 @@ class _Loop:
         self.last_saturated = 0
         if fade == 0.0 or max(map(abs, wl)) <= self.allocator.safe_wrench:
             return w  # the usual sample: no actuator near its limit (the allocation costs 1.7 us)
+        return self._allocated(w)
+
+    def _rejected(self) -> Array:
+        """A non-finite twist's answer: zero wrench, counted, the states untouched."""
+        self.nonfinite += 1
+        self.last_saturated = 0
+        return np.zeros(self.dof)
+
+    def _allocated(self, w: Array) -> Array:
+        """Wrench ``w`` (dof,) of this sample's filter update, allocated: ``w`` itself when no
+        actuator is beyond its limit, else the clipped forces' wrench with the update undone
+        (conditional integration; ``saturations`` and ``last_saturated`` count it)."""
         clipped, n_sat = self.allocator.clip(self.allocator.forces(w))
         if n_sat == 0:
             return w
@@ -313,9 +323,15 @@ class FeedforwardLoop(_Loop):
         super().__init__(cfg, 1, tfs, enabled)
 
 
-def make_controller(cfg: SystemConfig, controller_id: str,
-                    enabled: bool = False) -> FeedbackLoop | FeedforwardLoop:
-    """Build a controller from its id: ``fb_stage<i>`` (i = 1..N) or ``ff_stage1``.
+#: The classes :func:`make_controller` builds: (feedback, feedforward).
+Kinds = tuple[type[FeedbackLoop], type[FeedforwardLoop]]
+
+
+def make_controller(cfg: SystemConfig, controller_id: str, enabled: bool = False,
+                    kinds: Kinds = (FeedbackLoop, FeedforwardLoop)
+                    ) -> FeedbackLoop | FeedforwardLoop:
+    """Build a controller from its id: ``fb_stage<i>`` (i = 1..N) or ``ff_stage1``, of the
+    classes ``kinds`` (feedback, feedforward; :mod:`.compiledcontrol` has compiled ones).
 
     Raises
     ------
@@ -324,10 +340,10 @@ def make_controller(cfg: SystemConfig, controller_id: str,
     """
     who = ControllerId.parse(controller_id)
     if not who.feedback:
-        return FeedforwardLoop(cfg, enabled)
+        return kinds[1](cfg, enabled)
     if who.stage > cfg.plant.num_stages:
         raise ConfigError(f"{cfg.source}: {controller_id}: only {cfg.plant.num_stages} stages")
-    return FeedbackLoop(cfg, who.stage, enabled)
+    return kinds[0](cfg, who.stage, enabled)
 
 
 def retuned(old: FeedbackLoop | FeedforwardLoop, cfg: SystemConfig, controller_id: str,
@@ -336,7 +352,9 @@ def retuned(old: FeedbackLoop | FeedforwardLoop, cfg: SystemConfig, controller_i
     ramp (unless the fade time changed: ``keep_fade`` False), and with the same filter
     structure (a gain or corner tweak) the delay states, so the output continues instead of
     restarting from rest; the fault counters carry over."""
-    new = make_controller(cfg, controller_id, enabled=old.enabled)
+    new = make_controller(cfg, controller_id, enabled=old.enabled,
+                          kinds=(type(old), FeedforwardLoop) if isinstance(old, FeedbackLoop)
+                          else (FeedbackLoop, type(old)))
     if keep_fade:
         new.fader = old.fader
     so, sn = old.filter.get_state(), new.filter.get_state()
@@ -361,6 +379,7 @@ __all__ = [
     "Fader",
     "FeedbackLoop",
     "FeedforwardLoop",
+    "Kinds",
     "actuator_limits",
     "make_controller",
     "retuned",

@@ -300,3 +300,33 @@ def decouple_sample(ext, starts, pinvs, vext, raw, out):  # type: ignore[no-unty
     for b in range(starts.shape[0] - 1):
         np.dot(pinvs[b], vext[starts[b]:starts[b + 1]], out[b])
     return True
+
+
+#: :func:`control_sample`'s answers: the wrench is in ``w`` (no actuator can be at its limit),
+#: the twist was not finite (nothing changed), or the caller must allocate (one may be).
+CONTROL_DONE, CONTROL_NONFINITE, CONTROL_ALLOCATE = 0, 1, 2
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def control_sample(sos, saved, axes, ub, x, g, safe, w):  # type: ignore[no-untyped-def]
+    """``_Loop.step`` of one twist ``x`` (dof,) at fader gain ``g`` up to the allocation: the
+    filter states ``sos`` (b0, b1, b2, a1, a2, z) saved into ``saved``, the axes' inputs
+    ``x[axes]`` filtered in ``ub``, ``w = -g * ub`` on those axes and zero elsewhere. Returns
+    :data:`CONTROL_DONE`, :data:`CONTROL_NONFINITE` (states untouched) or
+    :data:`CONTROL_ALLOCATE` (a component beyond ``safe``, the largest that saturates no
+    actuator, and ``g`` not zero: the object's allocation and anti-windup follow)."""
+    if not _finite(x):
+        return CONTROL_NONFINITE
+    b0, b1, b2, a1, a2, z = sos
+    saved[:] = z
+    for j in range(axes.shape[0]):
+        ub[j] = x[axes[j]]
+    _sos(b0, b1, b2, a1, a2, z, ub)
+    w[:] = 0.0
+    big = False
+    for j in range(axes.shape[0]):
+        v = -g * ub[j]
+        w[axes[j]] = v
+        if abs(v) > safe:
+            big = True
+    return CONTROL_ALLOCATE if big and g != 0.0 else CONTROL_DONE

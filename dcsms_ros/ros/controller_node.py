@@ -39,8 +39,9 @@ from std_srvs.srv import SetBool
 
 from dcsms_ros.cdr import TWIST_STAMPED, WRENCH_STAMPED, StampedWriter, read_stamped
 from dcsms_ros.core import topics
+from dcsms_ros.core.compiledcontrol import controller
 from dcsms_ros.core.config import SystemConfig
-from dcsms_ros.core.controllers import make_controller, retuned
+from dcsms_ros.core.controllers import retuned
 from dcsms_ros.core.modes import ControllerId
 from dcsms_ros.errors import ConfigError
 from dcsms_ros.protocols.gate import MATCH_TIMEOUT_S
@@ -112,7 +113,9 @@ class ControllerNode(GraphNode, Hosted):
         cfg = self.params.cfg
         # lockstep starts at full gain, as the batch engine does; real time fades in from zero,
         # so a (re)started controller joins a running plant without a kick
-        self.loop = make_controller(cfg, cid, enabled=bool(enabled) and self.lockstep)
+        # compiled where numba is loaded anyway and every us is the one driver thread's
+        self.loop = controller(cfg, cid, enabled=bool(enabled) and self.lockstep,
+                               compiled=self.hot.bus is not None)
         if enabled and not self.lockstep:
             self.loop.enable(True)
         self.dof, self.rate = cfg.plant.dof, cfg.plant.rate_hz
