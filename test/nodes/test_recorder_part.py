@@ -24,7 +24,7 @@ from dcsms_ros import cdr
 from dcsms_ros.analysis.gaps import PUBLISHED_KEY
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import RECORD_PART_ENV, RECORD_TOPICS_ENV
-from dcsms_ros.nodes.recorder_part import attach
+from dcsms_ros.nodes.recorder_part import PART_BATCH, attach
 from dcsms_ros.protocols.matched import MATCH_REFRESH_NS
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.callbackgroups import UnlockedGroup
@@ -103,6 +103,28 @@ def test_every_published_message_is_in_the_part_and_dds_only_with_a_reader(
     assert [m for t, m in rows if t == DURABLE] == first
     info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert json.loads(info["custom_data"][PUBLISHED_KEY]) == {VOLATILE: 10, DURABLE: 5}
+
+
+def test_the_hot_thread_writes_whole_batches_in_publication_order_and_the_rest_at_the_end(
+        ctx: Any, tmp_path: Path) -> None:
+    node = Writer(context=ctx)
+    try:
+        part = attach(node, {RECORD_PART_ENV: str(tmp_path / "part"),
+                             RECORD_TOPICS_ENV: f"{VOLATILE} {DURABLE}"})
+        assert part is not None
+        msgs = _msgs(2 * PART_BATCH + 7)
+        for i, m in enumerate(msgs):
+            (node.vol if i % 3 else node.dur).publish(m)
+            written = sum(part.writer.counts.values())
+            assert written == (i + 1) // PART_BATCH * PART_BATCH, i  # whole batches only
+        path = part.finish()
+    finally:
+        node.destroy_node()
+    with Reader(path) as r:
+        rows = [(c.topic, bytes(raw)) for c, _, raw in r.messages()]
+    assert sorted(m for _, m in rows) == sorted(msgs)
+    assert [m for t, m in rows if t == VOLATILE] == [m for i, m in enumerate(msgs) if i % 3]
+    assert [m for t, m in rows if t == DURABLE] == [m for i, m in enumerate(msgs) if not i % 3]
 
 
 def test_without_the_variables_nothing_is_recorded_and_a_bad_part_is_one_error(
