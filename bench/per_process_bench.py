@@ -33,10 +33,11 @@ LATE_MAX = 0.01
 #: sample goes, and the floor of a relay").
 CPU_WHY = ("NOT met: a process that only relays each message, woken across cores as the "
            "kernel places the graph's real-time threads, costs about a controller's whole "
-           "target (the relay row below); the rest is the node's Python per sample, 3-4x the "
-           "same code warm in one process (a controller's handler ~45 us against 16 us; the "
-           "plant publishes 5 messages, drains 3 lanes and steps: ~230 us on its hot thread; "
-           "docs/performance.md)")
+           "target (the relay row below); the rest is the interpreter, cold at every wake-up: "
+           "of a controller's hot thread 67 % is libpython and 15 % the kernel switching it "
+           "back in (perf, cpu-clock, 3 s), for ~130 calls (Python and C) a sample that take "
+           "~16 us warm in one process; the plant publishes 5 messages, drains 3 lanes and "
+           "steps: ~220 us on its hot thread; docs/performance.md)")
 #: CPU per sample (us) each node of the per-process graph may spend, recorder per message.
 CPU_TARGETS_US = {"plant_simulator": 100.0, "sensor_decoupling": 60.0, "fb_stage1": 40.0,
                   "fb_stage2": 40.0, "ff_stage1": 40.0, "recorder": 15.0}
