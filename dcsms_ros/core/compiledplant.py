@@ -7,7 +7,8 @@ A graph's plant steps one sample per call: :meth:`.PlantSimulator.measure` and
 compiled kernel call a sample (:func:`.fastloop.plant_sample`: the plant part of the batch
 engine's fused loop, which is bit-identical to the object path; 6.6 us a sample), and
 draws the disturbances and the geophone noise in blocks (:meth:`.Disturbances.block`,
-:meth:`.GeophoneArray.noise_block`: the same values as sample by sample). What differs: the
+:meth:`.GeophoneArray.noise_block`: the same values as sample by sample), their band-passes
+run by the compiled block filter (:func:`.fastsim.sosfilt`, the same bits). What differs: the
 readings :meth:`measure` returns are a buffer of the plant's (valid until the next sample),
 and a replayed ground's end is warned about when its block is drawn.
 
@@ -25,13 +26,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcsms_ros.core.config import SystemConfig
-from dcsms_ros.core.fastsim import available, gemv_layout
+from dcsms_ros.core.fastsim import available, gemv_layout, sosfilt
 from dcsms_ros.core.simulator import PlantSimulator
 
 Array = NDArray[np.float64]
 
-#: Samples of disturbances and geophone noise drawn at once (0.5 s at 2 kHz).
-DRAW_BLOCK = 1024
+#: Samples of disturbances and geophone noise drawn at once (0.128 s at 2 kHz). A draw holds
+#: up the sample that makes it: 1,024 samples band-passed by the nodes' Python filter took
+#: 0.75-1.1 ms on table1 and 2.2-2.4 ms on tem_three_point, every 0.5 s a sample or more
+#: past its deadline in real time; with the compiled filter the longest sample of 8,192 is
+#: 0.11-0.12 ms on table1 and 0.35-0.41 ms on tem_three_point at 256 (the white noise's own
+#: 1,024-row draws, which the object path makes too), 0.15-0.28 and 0.48-0.73 ms at 1,024.
+DRAW_BLOCK = 256
 
 
 class CompiledPlant(PlantSimulator):
@@ -49,6 +55,7 @@ class CompiledPlant(PlantSimulator):
 
         self._kernel = plant_sample
         self._row = self._block_len = -1  # the base's __init__ draws sample 0: the first block
+        kwargs.setdefault("block_filter", sosfilt)
         super().__init__(cfg, **kwargs)
         p, chan = self.plant, self.channel_matrix
         nst, dof = cfg.plant.num_stages, self.dof

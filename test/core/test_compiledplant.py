@@ -12,7 +12,12 @@ from numpy.testing import assert_array_equal
 from dcsms_ros.core import compiledplant, fastsim
 from dcsms_ros.core.compiledplant import DRAW_BLOCK, CompiledPlant, plant_simulator
 from dcsms_ros.core.config import load_config
+from dcsms_ros.core.disturbance import BLOCK
+from dcsms_ros.core.sensors import NOISE_BLOCK
 from dcsms_ros.core.simulator import PlantSimulator
+
+#: Samples that cross the draw blocks and the noise sources' own blocks twice.
+SPAN = int(2.5 * max(DRAW_BLOCK, BLOCK, NOISE_BLOCK))
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 
@@ -47,10 +52,11 @@ def _run_both(a: PlantSimulator, b: PlantSimulator, samples: int, seed: int = 5,
 
 @pytest.mark.parametrize("name", ["table1.yaml", "tem_three_point.yaml", "tem_paper_fit.yaml"])
 def test_the_compiled_plant_is_the_object_path_to_the_bit(name: str) -> None:
-    """Over 2.5 draw blocks, with saturation, non-finite wrenches and excitation."""
+    """Over 2.5 draw and noise blocks, with saturation, non-finite wrenches and excitation;
+    the compiled plant's band-passes run compiled, the object's in Python."""
     cfg = load_config(CONFIG / name)
     a, b = PlantSimulator(cfg, seed=11), CompiledPlant(cfg, seed=11)
-    _run_both(a, b, int(2.5 * DRAW_BLOCK))
+    _run_both(a, b, SPAN)
     assert a.saturations > 0 and a.nonfinite_inputs > 0  # the test reached those paths
 
 
