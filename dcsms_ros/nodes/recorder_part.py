@@ -14,10 +14,11 @@ recorder's rule (it takes the bus's bytes) for a process of one node.
 directory) and :data:`~dcsms_ros.graph.RECORD_TOPICS_ENV` (the topics); without them a node
 records nothing, as under ``ros2 run``. The hot thread gathers its messages (after each one
 went to its readers) and writes them :data:`PART_BATCH` at a time, one warm pass through the
-writer instead of one cold call a sample: the real-time graph's CPU per sample fell 8-30 us in
-the plant, up to 18 in the decoupling and 2-16 in a controller, late samples 189-220 against
-241-280 (4 alternating pairs of 30 s, recording on); :meth:`PartRecorder.finish` writes the
-rest. Full chunks are compressed and written by the node's executor, outside the hot-path lock
+writer instead of one cold call a sample (4 alternating pairs of 30 s real time, recording
+on: CPU per sample 7-30 us less in the plant, 6-18 less in the decoupling in 3 pairs and 6 more
+in one, 2-16 less in a controller; late samples 189 / 211 / 218 / 220 against 241 / 280 / 265 /
+192); :meth:`PartRecorder.finish` writes the rest. Full chunks are compressed and written by
+the node's executor, outside the hot-path lock
 (:class:`~dcsms_ros.ros.callbackgroups.UnlockedGroup`: under it, the hot thread waited for each
 chunk and the plant's late samples doubled, docs/performance.md).
 """
