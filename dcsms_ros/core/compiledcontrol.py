@@ -13,7 +13,7 @@ the object's own code on the same states, so every answer and counter is the obj
 else a :class:`.FeedbackLoop` / :class:`.FeedforwardLoop`; the kernel is compiled (or loaded
 from numba's cache) when the first one is built. The controller nodes ask for it in a composed
 process only: there numba is loaded already (the plant's) and a step saves ~1 us (table1) to
-3 us (6dof) of the one driver thread, the composed lockstep graph ran 10-27 % faster (same-run
+3 us (6dof) of the one driver thread, the composed lockstep graph ran 9-32 % faster (same-run
 pairs); in a process of its own a controller spends ~100 us of CPU a sample, mostly waking up,
 and importing numba made the graph connect 0.6-0.9 s later (1.7-2.0 s -> 2.6 s, 3 pairs).
 """
