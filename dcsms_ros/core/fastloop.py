@@ -199,7 +199,6 @@ def run_block(k0, k1, plant, geo, ext, dec, ctl, fade, alloc, ground, dist, nois
     return k1
 
 
-
 @numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def plant_sample(mats, x, work, geo, pinvs, limits, counters, wrench, stage, excite,  # type: ignore[no-untyped-def]
                  g_rows, d_rows, n_rows, r, rn, applied):

@@ -32,8 +32,8 @@ BLOCK = 1 << 16
 
 
 def available() -> bool:
-    """True when numba can be imported (the fast paths are optional: the engine and the plant
-    node step the objects without it)."""
+    """True when numba can be imported (the fast paths are optional: the engine and the nodes
+    step the objects without it)."""
     return importlib.util.find_spec("numba") is not None
 
 
