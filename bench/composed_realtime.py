@@ -90,6 +90,11 @@ def measure(smoke: bool, tmp: Path, base: int, secs: float, floor: Any, held: in
     return secs, runs, floors, idle
 
 
+def _pct(share: float | None) -> str:
+    """A share as a percentage (``?``: not known)."""
+    return "?" if share is None else f"{100 * share:.1f}"
+
+
 def _why(r: dict[str, Any]) -> str:
     """Why the pooled rate misses the target (the runs' own figures)."""
     share = r["cpu"].get("driver", r["cpu"]["composed"])
@@ -114,6 +119,7 @@ def rows(secs: float, runs: list[dict[str, Any]], floors: list[dict[str, Any]],
     lo, hi = (b + r_all["stale"] / forces for b in count_interval(r_all["late"], deadlines))
     per_run = " / ".join(f"{x:.5f}" for x, _, _ in each)
     per_floor = " / ".join(f"{f['late_ratio']:.5f}" for f in floors)
+    steal = " / ".join(_pct(r.get("steal")) for r in runs)
     out = realtime_rows(r_all, s_all, secs * len(runs), ", composed, recorder in the process")
     out[1]["target_max"], out[2]["target_max"] = LATE_MAX, LATENCY_P99_MAX_MS
     floor_late = sum(f["late"] for f in floors) / sum(f["samples"] for f in floors)
@@ -127,7 +133,8 @@ def rows(secs: float, runs: list[dict[str, Any]], floors: list[dict[str, Any]],
                 f"Poisson interval of the pooled figure {lo:.5f}-{hi:.5f}; the runs scatter "
                 f"more); per run {per_run} (median "
                 f"{statistics.median(x for x, _, _ in each):.5f}), within {LATE_MAX:g} in "
-                f"{met} of {len(runs)}; the floor after each run {per_floor}; "
+                f"{met} of {len(runs)}; the floor after each run {per_floor}; the machine's "
+                f"steal time in each run {steal} %; "
                 f"{recorded}; --rt-priority 50" + (_why(r_all) if late > LATE_MAX else "")})
     wake = "/".join(f"{q:.0f}" for q in floors[-1]["wake_us"])
     work = " / ".join(f"{f['work_us']:.0f}" for f in floors)

@@ -4,8 +4,9 @@
 recorder) through ``dcsms_ros.cli.deploy``, lets the plant step ``seconds`` of simulated time,
 and reads what the plant wrote about every sample (``timing_file``: the wall time of each
 sample, per controller the time from a sample's publication to the arrival of the force stamped
-with it), the CPU of each process (``/proc/<pid>/stat``) and, when recorded, the bag's message
-counts. :func:`lockstep_rate`, :func:`realtime_stats` and :func:`p50_us` reduce it.
+with it), the CPU of each process (``/proc/<pid>/stat``), the machine's steal time
+(``/proc/stat``) and, when recorded, the bag's message counts. :func:`lockstep_rate`,
+:func:`realtime_stats` and :func:`p50_us` reduce it.
 """
 
 from __future__ import annotations
@@ -72,6 +73,7 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     ``on_running(kids)`` (e.g. a profiler attaching to ``kid.proc.pid``) is called once the
     plant steps."""
     from dcsms_ros.cli import deploy, processes
+    from dcsms_ros.cli.hoststeal import read_cpu_times, steal_fraction
     from dcsms_ros.cli.parts import RECORDER_PART, merge_parts, parts_dir
     from dcsms_ros.core.config import load_config
     from dcsms_ros.core.modes import Mode
@@ -118,11 +120,13 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
         deadline = time.monotonic() + timeout_s
         cpu0: dict[str, int | None] = {}
         t_cpu0 = 0.0
+        host0 = None
         driver: int | None = None  # composed under SCHED_FIFO: its driver thread's CPU
         drv: list[tuple[float, int]] = []  # (time, ticks): the first and the latest
         while plant.proc.poll() is None and time.monotonic() < deadline:
             if not cpu0 and "graph connected" in plant.log.read_text(errors="replace"):
                 t_cpu0 = time.monotonic()
+                host0 = read_cpu_times()
                 cpu0 = {k.name: _cpu_ticks(k.proc.pid) for k in kids + rec
                         if k.proc is not None}
                 if on_running is not None:
@@ -136,6 +140,7 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
                     drv = [drv[0] if drv else now, now]
             time.sleep(0.02)
         t_cpu1 = time.monotonic()
+        host1 = read_cpu_times()
         cpu1 = {k.name: _cpu_ticks(k.proc.pid) for k in kids + rec if k.proc is not None}
         if plant.proc.poll() is None:
             raise TimeoutError(f"{schedule} graph did not finish within {timeout_s:g} s")
@@ -165,7 +170,8 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
            "overruns": int(z["overruns"]), "recorded": None,
            "late": int(z["overruns"]) + int(z["late_steps"] if "late_steps" in z.files else 0),
            "stale": int(z["stale_samples"]) if "stale_samples" in z.files else 0,
-           "controllers": len([k for k in z.files if k.startswith("lat_ns_")])}
+           "controllers": len([k for k in z.files if k.startswith("lat_ns_")]),
+           "steal": steal_fraction(host0, host1)}
     if record and bag.exists():
         from rosbags.rosbag2 import Reader
 

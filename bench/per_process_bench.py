@@ -109,8 +109,10 @@ def per_process_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row
                          f"forces applied a sample late {_delayed(r['summary'])}"
                          for r, v in zip(ended, lates, strict=True))
         busy = " / ".join(f"{100 * r['busy']:.0f}" for r in ended)
+        steal = " / ".join("?" if r["summary"].get("steal") is None
+                           else f"{100 * r['summary']['steal']:.1f}" for r in ended)
         note = (f"the worst of {len(ended)} runs; each: {each}; the machine's {os.cpu_count()} "
-                f"cores were {busy} % busy")
+                f"cores were {busy} % busy, {steal} % stolen by the hypervisor")
         if max(lates) > LATE_MAX:
             note += ("; NOT met where the processes need most of the machine: late samples are "
                      "the plant's deadlines missed while both cores are busy (the CPU rows "

@@ -30,6 +30,7 @@ from typing import Any
 import yaml
 
 from dcsms_ros.analysis.gaps import read_published
+from dcsms_ros.cli.hoststeal import read_cpu_times, steal_fraction
 from dcsms_ros.cli.parts import RECORDER_PART, merge_parts, parts_dir, records_in_nodes
 from dcsms_ros.cli.processes import (
     RECORDER_STOP_TIMEOUTS,
@@ -184,6 +185,8 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
                 kid.env[RECORD_TOPICS_ENV] = " ".join(streams)
     status = 0
     plant: dict[str, str] = {}
+    steal: float | None = None
+    cpu0 = read_cpu_times()
     try:
         start(kids, how.log_dir, how.verbose)  # recorder first: it must see the first samples
         start(graph, how.log_dir, how.verbose)
@@ -193,6 +196,7 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
             status = monitor.supervise(graph + kids, stop_requested, how.connect_timeout,
                                        how.expect_finish)
             plant = dict(monitor.diag.get("plant_simulator", {}))
+            steal = steal_fraction(cpu0, read_cpu_times())
     finally:
         # the graph first (composed with the recorder inside: its drain too), so the recorder
         # receives everything it published
@@ -202,20 +206,23 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     if parts is not None and how.record is not None:
         status = merge_parts(parts, how.record) or status
     if plant:
-        report_summary(spec, plant, how.record, how.log_dir, how.composed, recorded_streams)
+        report_summary(spec, plant, how.record, how.log_dir, how.composed, recorded_streams,
+                       steal)
     return status
 
 
 def report_summary(spec: GraphSpec, plant: dict[str, str], bag: Path | None,
                    log_dir: Path, composed: bool = False,
-                   streams: Sequence[str] | None = None) -> RunSummary:
+                   streams: Sequence[str] | None = None,
+                   steal: float | None = None) -> RunSummary:
     """Print the run's summary line (and a warning, whose hint depends on ``composed``) and
     write it as ``summary.json`` in ``log_dir``. ``streams``: the per-sample topics that were
-    to be recorded (default every one of ``spec``); one the bag lacks counts as none recorded."""
+    to be recorded (default every one of ``spec``); one the bag lacks counts as none recorded.
+    ``steal``: the machine's steal time while the graph ran (:mod:`.hoststeal`)."""
     counts = bag_counts(bag) if bag is not None else None
     published = bag_published(bag) if bag is not None else None
     summary = summarize(plant, counts, list(spec.stream_topics() if streams is None
-                                            else streams), published)
+                                            else streams), published, steal)
     print(f"dcsms up: summary: {summary.line()}", flush=True)
     warning = summary.warning(composed)
     if warning:

@@ -60,6 +60,10 @@ LATE_WARN = 0.01
 #: Fraction of the controllers' forces counted as zero (stale) above which a real-time summary
 #: warns: the loop was open that often.
 STALE_WARN = 0.01
+#: Share of the machine's CPU its hypervisor took during a run (steal time) from which a
+#: real-time summary's late-sample warning names it: a few per cent already cost deadlines on
+#: the project's 2-core virtual machine (:mod:`dcsms_ros.cli.hoststeal`).
+STEAL_NOTE = 0.02
 
 
 @dataclass(frozen=True)
@@ -107,6 +111,10 @@ class RunSummary:
         ``control.input_timeout_s``) nor the latency quantiles (of forces that arrived) show
         it. 0 in lockstep. Kept out of :meth:`line`, whose fields are fixed; in
         :meth:`to_dict`.
+    steal : float or None
+        Share (0 to 1) of the machine's CPU time its hypervisor took while the graph ran
+        (steal time, :mod:`dcsms_ros.cli.hoststeal`; None: not known). In :meth:`to_dict`, and
+        in the late-sample warning from :data:`STEAL_NOTE` on.
     """
 
     samples: int
@@ -121,6 +129,7 @@ class RunSummary:
     forces: int = 0
     overruns: int = 0
     delayed: int = 0
+    steal: float | None = None
 
     @property
     def late_fraction(self) -> float:
@@ -166,6 +175,10 @@ class RunSummary:
                 out.append(f"{100.0 * self.late_fraction:.3g} % of the samples missed their "
                            f"deadline: this machine did not keep the graph in real time, and "
                            f"the loop that ran had more delay than the configured one")
+                if self.steal is not None and self.steal >= STEAL_NOTE:
+                    out[-1] += (f" (its hypervisor took {100.0 * self.steal:.3g} % of the "
+                                f"machine's CPU meanwhile: steal time, which no setting of "
+                                f"the graph wins back)")
             if self.forces and self.stale > STALE_WARN * self.forces:
                 out.append(f"{100.0 * self.stale / self.forces:.3g} % of the controllers' "
                            f"forces came after control.input_timeout_s and counted as zero: "
@@ -191,7 +204,8 @@ def _ms(s: float) -> str:
 
 
 def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
-              streams: list[str], published: Mapping[str, int] | None = None) -> RunSummary:
+              streams: list[str], published: Mapping[str, int] | None = None,
+              steal: float | None = None) -> RunSummary:
     """The summary of a run from the plant's last diagnostics and the bag's counts.
 
     Parameters
@@ -207,6 +221,8 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
     published : mapping, optional
         Messages each topic's publisher published (the recorder's count, see
         :attr:`RunSummary.published`); used when it covers every recorded stream.
+    steal : float, optional
+        The machine's steal time over the run (:attr:`RunSummary.steal`).
     """
     samples = int(plant.get("sample", "0"))
 
@@ -230,7 +246,7 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
                       recorded=recorded, samples_x_streams=scale,
                       lockstep=plant.get("schedule", "lockstep") == "lockstep",
                       published=sent, overruns=int(plant.get("overruns", "0")),
-                      delayed=int(plant.get("delayed_samples", "0")))
+                      delayed=int(plant.get("delayed_samples", "0")), steal=steal)
 
 
-__all__ = ["LATE_WARN", "STALE_WARN", "LatencyHistogram", "RunSummary", "summarize"]
+__all__ = ["LATE_WARN", "STALE_WARN", "STEAL_NOTE", "LatencyHistogram", "RunSummary", "summarize"]

@@ -156,3 +156,27 @@ def test_a_bag_that_lacks_published_messages_warns_in_any_schedule(schedule: str
     assert unknown.lost == 0 and "lacks" not in (unknown.warning() or "")
     assert summarize({**plant, "schedule": "lockstep"}, {"/a": 40000}, ["/a"],
                      {"/a": 40000}).warning() is None
+
+
+@pytest.mark.parametrize(("steal", "named"), [(None, False), (0.0199, False), (0.02, True),
+                                              (0.117, True)])
+def test_a_late_warning_names_the_hypervisor_s_share_from_two_percent(
+        steal: float | None, named: bool) -> None:
+    """Late samples on a host whose hypervisor took >= 2 % of the CPU: the warning says how
+    much (a user cannot tell that from the graph's figures); below it, or unknown, it does
+    not. The share is in the JSON either way."""
+    s = summarize({"sample": "40000", "late_steps": "4394", "schedule": "realtime"}, None, [],
+                  steal=steal)
+    w = s.warning()
+    assert w is not None and w.count("\n") == 0
+    assert ("steal time" in w) == named
+    if named:
+        assert steal is not None and f"took {100 * steal:.3g} % of the machine's CPU" in w
+    assert s.to_dict()["steal"] == steal
+
+
+def test_steal_alone_does_not_warn() -> None:
+    """A run that kept its deadlines on a busy host is fine: no warning for the steal alone."""
+    s = summarize({"sample": "40000", "late_steps": "10", "schedule": "realtime"}, None, [],
+                  steal=0.15)
+    assert s.warning() is None
