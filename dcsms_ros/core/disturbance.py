@@ -1,11 +1,13 @@
 """Seeded band-limited white-noise disturbances: ground velocity and table forces.
 
-Noise is drawn in blocks of :data:`BLOCK` samples from a ``numpy.random.Generator`` and
+Noise comes in blocks of :data:`BLOCK` samples from a ``numpy.random.Generator`` and is
 served sample by sample, so the sequence depends only on the seed, never on how callers
-consume it (``next()`` per sample or ``block(n)``). A block's band-pass runs when its rows are
-first served, :data:`CHUNK` rows at a time for ``next()``: the sections carry their state
-from row to row, so any split gives the same bits, and a real-time plant pays for a block's
-filtering in small pieces instead of in one step every :data:`BLOCK` samples.
+consume it (``next()`` per sample or ``block(n)``). A block's white noise is drawn and
+band-passed when its rows are first served, :data:`CHUNK` rows at a time for ``next()``: each
+source has its own generator, whose normal stream splits into consecutive draws the same way
+however it is cut, and the sections carry their state from row to row, so any split gives the
+same bits, and a real-time plant pays for a block in small pieces instead of in one step every
+:data:`BLOCK` samples.
 """
 
 from __future__ import annotations
@@ -114,8 +116,8 @@ class BandNoise:
                        / math.sqrt(noise_gain(self._sos)))
         self._zi = (None if self._sos is None
                     else np.zeros((self._sos.shape[0], 2, self.channels)))
-        # the block: white noise, its filtered rows (0 .. _done) and their read-only view
-        self._white = self._out = self._view = np.zeros((BLOCK, self.channels))
+        # the block: its rows drawn and filtered so far (0 .. _done) and their read-only view
+        self._out = self._view = np.zeros((BLOCK, self.channels))
         self._done = self._k = BLOCK  # nothing drawn yet: the first sample draws
         if self._sos is not None and warm:
             r = _slowest_pole_radius(self._sos)
@@ -135,18 +137,20 @@ class BandNoise:
         return np.asarray(self._scale, dtype=np.float64)
 
     def _refill(self) -> None:
-        """Draw the next block's white noise; its rows are filtered when first served."""
-        self._white = self._rng.standard_normal((BLOCK, self.channels))
+        """Start the next block; its rows are drawn and filtered when first served. Drawing
+        all 1,024 rows here made the refilling sample take ~128 us against ~20-44 us for a
+        :data:`CHUNK` (table1 and tem_three_point, compiled filter; docs/performance.md,
+        fortieth session)."""
         # a new array each block: rows handed out earlier (views) keep their values
-        self._out = np.empty_like(self._white)
+        self._out = np.empty((BLOCK, self.channels))
         self._view = self._out.view()
         self._view.flags.writeable = False
         self._done = self._k = 0
 
     def _filter(self, n: int) -> None:
-        """Band-pass and scale the block's rows ``_done .. n``."""
+        """Draw, band-pass and scale the block's rows ``_done .. n``."""
         lo = self._done
-        w = self._white[lo:n]
+        w = self._rng.standard_normal((n - lo, self.channels))
         if self._sos is not None and self._zi is not None:
             w, self._zi = self._run(self._sos, w, self._zi)
         self._out[lo:n] = w * self._scale

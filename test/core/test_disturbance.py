@@ -112,6 +112,31 @@ def test_band_noise_next_filters_a_chunk_at_a_time():
     assert np.isfinite(served).all()
 
 
+class _CountingRng:
+    """A generator that records how many rows each normal draw asks for."""
+
+    def __init__(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+        self.rows: list[int] = []
+
+    def standard_normal(self, size):
+        self.rows.append(size[0])
+        return self.rng.standard_normal(size)
+
+
+def test_band_noise_next_draws_a_chunk_at_a_time():
+    """A sample served by next() draws at most CHUNK rows of white noise too: a whole block's
+    draw in the sample that starts it made that sample ~128 us long (the real-time plant's);
+    the rows are the whole-block draw's all the same (test above)."""
+    rng = _CountingRng(5)
+    bn = BandNoise(1.0, (0.5, 100.0), FS, 2, rng)
+    warm = len(rng.rows)
+    for _ in range(3 * BLOCK):
+        bn.next()
+    assert max(rng.rows[warm:]) == CHUNK
+    assert sum(rng.rows[warm:]) == 2 * BLOCK  # the warm-up's last block is served first
+
+
 def test_band_noise_rejects_empty_band():
     """An upper edge not above the lower edge is a configuration error."""
     with pytest.raises(ConfigError):
