@@ -1,21 +1,27 @@
-"""The CPU wake-up latency a real-time process may ask the kernel for (PM QoS), opt-in.
+"""The CPU wake-up latency a real-time hot loop holds while it runs (PM QoS), 0 us by default.
 
 A hot loop under SCHED_FIFO sleeps between samples and its core goes idle; how fast an idle
-core wakes for the thread's timer depends on the idle state the kernel picked (on bare metal a
-deep C-state takes tens to hundreds of us to leave). The kernel's ``/dev/cpu_dma_latency``
-takes a process's tolerated wake-up latency (a 32-bit integer, us), holds it while the file
-stays open, applies the smallest request of all processes and withdraws a request when its
-process closes the file or dies. ``cyclictest`` asks for 0 us by default. Opening it needs root.
+core wakes for the thread's timer, and how warm it finds its caches, depends on the idle state
+the kernel picked (on bare metal a deep C-state takes tens to hundreds of us to leave and
+loses the caches; in a virtual machine an idle virtual CPU halts and leaves its physical core to
+the host). The kernel's ``/dev/cpu_dma_latency`` takes a process's tolerated wake-up latency
+(a 32-bit integer, us), holds it while the file stays open, applies the smallest request of all
+processes and withdraws a request when its process closes the file or dies. ``cyclictest``
+asks for 0 us by default, and so does a hot loop under SCHED_FIFO here: idle cores then poll
+instead of halting. ``DCSMS_CPU_LATENCY_US=N`` asks for N us instead, ``off`` for nothing (the
+kernel's choice). Opening the file needs root; refused, the run goes on with a warning.
 
-``DCSMS_CPU_LATENCY_US=N`` makes a hot loop under SCHED_FIFO hold N us while it runs; unset
-(the default) leaves the kernel's choice. Why not by default, measured on this package's
-reference machine (a KVM guest whose idle state is a halt; docs/performance.md, "The machine's
-floor"): holding 0 us made a thread that only sleeps to 2 kHz deadlines wake 15 instead of 37
-us after them at the median (p99 40 instead of 81 us) and the composed graph's control latency
-p50 lower in 11 of 13 alternating pairs (0.13-0.19 against 0.15-0.24 ms), but its late samples
-were not fewer (lower in 6 of 13; median 0.45 against 0.39 % of 40,000) and 5 of its 13 runs
-had stale forces (3-23 each) against none of the 13 without: the idle cores that poll instead
-of halting keep both virtual CPUs busy on the host.
+Measured on this package's reference machine, a KVM guest whose idle state is a halt
+(docs/performance.md, fortieth and twelfth sessions): the same Python work run every 500 us
+took 2-2.5x the CPU it takes back to back (77-96 against 38 us), 43-59 us with 0 us held. The
+user's recorded real-time command, 9 alternating pairs per deployment on a contended host:
+late + stale samples fewer with 0 us held in 8 of 9 pairs per process (late 3.47 against 0.79 %
+pooled; the hypervisor's steal time during the runs 0.04-9.4 % without it, 0.05-1.3 % with it)
+and in 7 of 9 composed (1.81 against 0.62 %). On a quiet host (twelfth session, 13 composed
+pairs) it made control latency p50 lower in 11 but late samples fewer in only 6, and 5 of those
+13 runs had 3-23 stale forces against none without: a cost of a few samples in a quiet hour
+against several times fewer late samples in a busy one. Polling idle cores keep the machine's
+CPUs busy on the host (and use power on bare metal) while a real-time graph runs.
 """
 
 from __future__ import annotations
@@ -26,15 +32,20 @@ from pathlib import Path
 
 #: The kernel's PM QoS request file for the CPUs' wake-up latency.
 PM_QOS_PATH = Path("/dev/cpu_dma_latency")
-#: Environment variable with the wake-up latency (us) to hold under SCHED_FIFO.
+#: Environment variable with the wake-up latency (us) to hold under SCHED_FIFO, or ``off``.
 CPU_LATENCY_ENV = "DCSMS_CPU_LATENCY_US"
+#: The wake-up latency (us) held when the variable is unset.
+DEFAULT_US = 0
 
 
 def latency_from_env() -> tuple[int | None, str | None]:
-    """The wake-up latency (us) ``$DCSMS_CPU_LATENCY_US`` asks for (None: unset, ``off`` or
-    bad; leave the kernel's) and a warning for a bad value; never raises."""
+    """The wake-up latency (us) ``$DCSMS_CPU_LATENCY_US`` asks for (:data:`DEFAULT_US` when
+    unset; None: ``off`` or bad, leave the kernel's) and a warning for a bad value; never
+    raises."""
     text = os.environ.get(CPU_LATENCY_ENV, "").strip()
-    if not text or text.lower() == "off":
+    if not text:
+        return DEFAULT_US, None
+    if text.lower() == "off":
         return None, None
     try:
         us = int(text)
@@ -98,4 +109,4 @@ def hold_from_env(path: Path = PM_QOS_PATH) -> tuple[CpuLatencyRequest | None, s
         return CpuLatencyRequest(us, path), None
     except OSError as exc:
         return None, (f"CPU wake-up latency {us} us not held ({path}: {exc.strerror}); idle "
-                      f"cores keep the kernel's idle states")
+                      f"cores keep the kernel's idle states ({CPU_LATENCY_ENV}=off: do not ask)")
