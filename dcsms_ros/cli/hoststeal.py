@@ -2,11 +2,12 @@
 
 On a virtual machine the host may run other guests on the cores this one believes it has; the
 guest's kernel counts the time its virtual CPUs were ready but not running as *steal*
-(``/proc/stat``, 8th field). A real-time run loses its deadlines then, whatever the graph does:
-on this project's 2-core machine a composed run during which ``vmstat`` showed 7-18 % steal
-missed 10.9 % of its deadlines, one with 0.12 % steal ten minutes later 0.45 %
-(docs/performance.md, fortieth session). ``dcsms up`` reads the counters before and after a
-run and puts the share in its summary
+(``/proc/stat``, 8th field), and a real-time run loses deadlines meanwhile: on this project's
+2-core machine a composed run during which ``vmstat`` showed 7-18 % steal missed 10.9 % of its
+deadlines, one with 0.12 % steal ten minutes later 0.45 % (docs/performance.md, fortieth
+session). The graph's idle cores poll rather than halt (:mod:`dcsms_ros.ros.cpulatency`): with
+them polling the runs' steal was lower in 13 of 18 pairs. ``dcsms up`` reads the counters
+before and after a run and puts the share in its summary
 (:attr:`~dcsms_ros.protocols.runstats.RunSummary.steal`), so a user can tell a loaded host
 from a graph that cannot keep up.
 """

@@ -177,8 +177,8 @@ class RunSummary:
                            f"the loop that ran had more delay than the configured one")
                 if self.steal is not None and self.steal >= STEAL_NOTE:
                     out[-1] += (f" (its hypervisor took {100.0 * self.steal:.3g} % of the "
-                                f"machine's CPU meanwhile: steal time, which no setting of "
-                                f"the graph wins back)")
+                                f"machine's CPU meanwhile: steal time, a host busy with other "
+                                f"work)")
             if self.forces and self.stale > STALE_WARN * self.forces:
                 out.append(f"{100.0 * self.stale / self.forces:.3g} % of the controllers' "
                            f"forces came after control.input_timeout_s and counted as zero: "
