@@ -124,33 +124,56 @@ def per_process_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row
     return rows + cpu_rows(smoke, tmp, base, rt_s)
 
 
+#: The recording of the CPU runs: off, on, on, off. The machine's speed drifts by several per
+#: cent between runs a minute apart; in this order a drift linear in time cancels in the
+#: difference of the means (one run off, then one on, gave recording a cost of -5 us a
+#: message, 2026-12-03).
+CPU_ORDER: tuple[str | None, ...] = (None, "parts", "parts", None)
+
+
+def _mean_cpu(runs: list[dict[str, Any]]) -> dict[str, float]:
+    """Each process's CPU share, averaged over ``runs`` (those that measured it)."""
+    names = {n for r in runs for n in r["cpu"]}
+    return {n: sum(r["cpu"][n] for r in runs if n in r["cpu"])
+            / sum(n in r["cpu"] for r in runs) for n in names}
+
+
 def cpu_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
     """CPU (us) per sample of each process of the real-time graph, ``--rt-priority 50``,
     recording off and on as ``dcsms up --realtime --record`` records (the per-sample topics in
-    the node processes); the recording's per message written: what recording adds to the
-    whole graph's CPU (every process, the recorder process included), per message."""
-    off_run, on_run = (run_graph("realtime", rt_s, base + 10 + bool(rec), tmp,
-                                 timeout_s=rt_s * 3 + 120, rt_priority=0 if smoke else 50,
-                                 record=rec)
-                       for rec in (None, "parts"))
+    the node processes), in the order :data:`CPU_ORDER`; the recording's per message written:
+    what recording adds to the whole graph's CPU (every process, the recorder process
+    included), per message, beside the spread of the two runs of each setting."""
+    runs = [run_graph("realtime", rt_s, base + 10 + i, tmp, timeout_s=rt_s * 3 + 120,
+                      rt_priority=0 if smoke else 50, record=rec)
+            for i, rec in enumerate(CPU_ORDER)]
+    offs = [r for r, rec in zip(runs, CPU_ORDER, strict=True) if rec is None]
+    ons = [r for r, rec in zip(runs, CPU_ORDER, strict=True) if rec is not None]
     with env(DCSMS_HOST_LANES="0"):  # the same recorded run on DDS alone, for comparison
-        dds_cpu = run_graph("realtime", rt_s, base + 12, tmp, timeout_s=rt_s * 3 + 120,
+        dds_cpu = run_graph("realtime", rt_s, base + 14, tmp, timeout_s=rt_s * 3 + 120,
                             rt_priority=0 if smoke else 50, record="parts")["cpu"]
-    off_cpu, on_cpu = off_run["cpu"], on_run["cpu"]
+    off_cpu, on_cpu = _mean_cpu(offs), _mean_cpu(ons)
+    rate = sum(r["rate_hz"] for r in ons) / len(ons)
     rows: list[Row] = []
     for name, target in CPU_TARGETS_US.items():
         off, on = off_cpu.get(name), on_cpu.get(name)
         if on is None:
             continue
         if name == "recorder":
-            written = sum((on_run["recorded"] or {}).values())
+            written = sum(sum((r["recorded"] or {}).values()) for r in ons) / len(ons)
             added = sum(on_cpu.values()) - sum(off_cpu.get(n, 0.0) for n in on_cpu)
             value = added * rt_s / max(written, 1) * 1e6
-            note = (f"{written} messages in {rt_s:g} s; recording adds {100 * added:.0f} % of "
-                    f"a core to the graph (the recorder process {100 * on:.0f} %)")
+            # what the graph's CPU moved between two runs of the same setting, per message
+            spread = max(abs(sum(a["cpu"].get(n, 0.0) for n in on_cpu)
+                             - sum(b["cpu"].get(n, 0.0) for n in on_cpu))
+                         for a, b in (offs, ons)) / 2 * rt_s / max(written, 1) * 1e6
+            note = (f"{written:.0f} messages in {rt_s:g} s; recording adds {100 * added:.0f} % "
+                    f"of a core to the graph (the recorder process {100 * on:.0f} %); two runs "
+                    f"of the same setting differ by up to +-{spread:.1f} us a message")
+            if value < spread:
+                note += "; not resolved from the runs' spread"
             base_v = base_name = None
         else:
-            rate = on_run["rate_hz"]
             value = on / rate * 1e6
             base_v = off / rate * 1e6 if off is not None else None
             base_name = "recording off"
@@ -183,4 +206,4 @@ def relay_row(smoke: bool) -> Row:
                     f"{'granted' if spread['fifo'] else 'not granted'}"}
 
 
-__all__ = ["CPU_TARGETS_US", "late_per_sample", "per_process_rows", "user_run"]
+__all__ = ["CPU_ORDER", "CPU_TARGETS_US", "late_per_sample", "per_process_rows", "user_run"]
