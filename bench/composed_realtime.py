@@ -21,6 +21,8 @@ import numpy as np
 from graph_run import run_graph
 from scipy.stats import chi2
 
+from dcsms_ros.cli.hoststeal import percents
+
 Row = dict[str, Any]
 
 #: Composed real-time runs of the late + stale row (each followed by a floor run).
@@ -90,11 +92,6 @@ def measure(smoke: bool, tmp: Path, base: int, secs: float, floor: Any, held: in
     return secs, runs, floors, idle
 
 
-def _pct(share: float | None) -> str:
-    """A share as a percentage (``?``: not known)."""
-    return "?" if share is None else f"{100 * share:.1f}"
-
-
 def _why(r: dict[str, Any]) -> str:
     """Why the pooled rate misses the target (the runs' own figures)."""
     share = r["cpu"].get("driver", r["cpu"]["composed"])
@@ -119,7 +116,7 @@ def rows(secs: float, runs: list[dict[str, Any]], floors: list[dict[str, Any]],
     lo, hi = (b + r_all["stale"] / forces for b in count_interval(r_all["late"], deadlines))
     per_run = " / ".join(f"{x:.5f}" for x, _, _ in each)
     per_floor = " / ".join(f"{f['late_ratio']:.5f}" for f in floors)
-    steal = " / ".join(_pct(r.get("steal")) for r in runs)
+    steal = percents([r.get("steal") for r in runs])
     out = realtime_rows(r_all, s_all, secs * len(runs), ", composed, recorder in the process")
     out[1]["target_max"], out[2]["target_max"] = LATE_MAX, LATENCY_P99_MAX_MS
     floor_late = sum(f["late"] for f in floors) / sum(f["samples"] for f in floors)

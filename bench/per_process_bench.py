@@ -21,6 +21,8 @@ from typing import Any
 import relay_floor
 from graph_run import env, run_graph
 
+from dcsms_ros.cli.hoststeal import busy_fraction, percents, read_cpu_times
+
 Row = dict[str, Any]
 
 #: Runs of the user's per-process command per `make bench` (issue 21 asks 20 of 20 to end by
@@ -45,13 +47,6 @@ CPU_TARGETS_US = {"plant_simulator": 100.0, "sensor_decoupling": 60.0, "fb_stage
                   "fb_stage2": 40.0, "ff_stage1": 40.0, "recorder": 15.0}
 
 
-def _busy() -> tuple[int, int]:
-    """The machine's (busy, total) CPU ticks since boot (``/proc/stat``)."""
-    f = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
-    idle = f[3] + (f[4] if len(f) > 4 else 0)
-    return sum(f) - idle, sum(f)
-
-
 def user_run(seconds: float, domain: int, tmp: Path, rt_priority: int) -> dict[str, Any]:
     """`dcsms up --realtime --rt-priority P --mode DFBC+FFC --duration S --record OUT` (table1),
     as a user runs it: ``rc`` (None: it did not end by itself within the timeout and was
@@ -62,7 +57,7 @@ def user_run(seconds: float, domain: int, tmp: Path, rt_priority: int) -> dict[s
             *(["--rt-priority", str(rt_priority)] if rt_priority else []), "--mode", "DFBC+FFC",
             "--duration", f"{seconds:g}", "--record", str(run / "bag"), "--log-dir",
             str(run / "log")]
-    b0 = _busy()
+    b0 = read_cpu_times()
     with env(ROS_DOMAIN_ID=str(domain)), open(run / "out.txt", "wb") as out:
         proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT,
                                 start_new_session=True)
@@ -72,12 +67,12 @@ def user_run(seconds: float, domain: int, tmp: Path, rt_priority: int) -> dict[s
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
             rc = None
-    b1 = _busy()
+    b1 = read_cpu_times()
     path = run / "log" / "summary.json"
     summary = json.loads(path.read_text()) if path.exists() else None
     shutil.rmtree(run / "bag", ignore_errors=True)
     return {"rc": rc, "summary": summary,
-            "busy": (b1[0] - b0[0]) / max(b1[1] - b0[1], 1)}
+            "busy": busy_fraction(b0, b1)}
 
 
 def late_per_sample(summary: dict[str, Any]) -> float:
@@ -110,9 +105,8 @@ def per_process_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row
         each = ", ".join(f"late {r['summary']['late']} stale {r['summary']['stale']} ({v:.4f}), "
                          f"forces applied a sample late {_delayed(r['summary'])}"
                          for r, v in zip(ended, lates, strict=True))
-        busy = " / ".join(f"{100 * r['busy']:.0f}" for r in ended)
-        steal = " / ".join("?" if r["summary"].get("steal") is None
-                           else f"{100 * r['summary']['steal']:.1f}" for r in ended)
+        busy = percents([r["busy"] for r in ended], digits=0)
+        steal = percents([r["summary"].get("steal") for r in ended])
         note = (f"the worst of {len(ended)} runs; each: {each}; the machine's {os.cpu_count()} "
                 f"cores were {busy} % busy, {steal} % stolen by the hypervisor")
         if max(lates) > LATE_MAX:

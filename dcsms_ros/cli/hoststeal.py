@@ -29,11 +29,14 @@ class CpuTimes:
     ----------
     steal : int
         Ticks the hypervisor ran something else while a CPU of this machine was ready.
+    idle : int
+        Ticks no CPU had work (idle and waiting for I/O).
     total : int
         Ticks of every kind (user, nice, system, idle, iowait, irq, softirq, steal).
     """
 
     steal: int
+    idle: int
     total: int
 
 
@@ -51,7 +54,7 @@ def read_cpu_times(path: Path = PROC_STAT) -> CpuTimes | None:
         ticks = [int(x) for x in first[1:9]]
     except ValueError:
         return None
-    return CpuTimes(steal=ticks[7], total=sum(ticks))
+    return CpuTimes(steal=ticks[7], idle=ticks[3] + ticks[4], total=sum(ticks))
 
 
 def steal_fraction(before: CpuTimes | None, after: CpuTimes | None) -> float | None:
@@ -65,4 +68,21 @@ def steal_fraction(before: CpuTimes | None, after: CpuTimes | None) -> float | N
     return max(after.steal - before.steal, 0) / total
 
 
-__all__ = ["PROC_STAT", "CpuTimes", "read_cpu_times", "steal_fraction"]
+def busy_fraction(before: CpuTimes | None, after: CpuTimes | None) -> float | None:
+    """The share (0 to 1) of the machine's CPU time between ``before`` and ``after`` that was
+    not idle (steal counts as busy: the cores were not free); None as :func:`steal_fraction`."""
+    if before is None or after is None:
+        return None
+    total = after.total - before.total
+    if total <= 0:
+        return None
+    return max(total - (after.idle - before.idle), 0) / total
+
+
+def percents(shares: list[float | None], digits: int = 1) -> str:
+    """``shares`` as percentages joined by " / " (``?`` where one is unknown)."""
+    return " / ".join("?" if s is None else f"{100 * s:.{digits}f}" for s in shares)
+
+
+__all__ = ["PROC_STAT", "CpuTimes", "busy_fraction", "percents", "read_cpu_times",
+           "steal_fraction"]

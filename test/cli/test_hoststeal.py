@@ -6,7 +6,13 @@ from pathlib import Path
 
 import pytest
 
-from dcsms_ros.cli.hoststeal import CpuTimes, read_cpu_times, steal_fraction
+from dcsms_ros.cli.hoststeal import (
+    CpuTimes,
+    busy_fraction,
+    percents,
+    read_cpu_times,
+    steal_fraction,
+)
 
 #: A 2-CPU machine's first lines (user nice system idle iowait irq softirq steal guest gnice).
 STAT = "cpu  {user} 2177 14423 81511 190 0 261 {steal} 40 0\ncpu0 1 2 3 4 5 6 7 8 9 10\n"
@@ -21,7 +27,8 @@ def _stat(tmp: Path, name: str, user: int, steal: int) -> Path:
 def test_the_counters_are_the_first_line_without_the_guest_fields(tmp_path: Path) -> None:
     """Steal is the 8th field; the total sums the first eight (guest time is already in user)."""
     t = read_cpu_times(_stat(tmp_path, "a", 63237, 882))
-    assert t == CpuTimes(steal=882, total=63237 + 2177 + 14423 + 81511 + 190 + 0 + 261 + 882)
+    assert t == CpuTimes(steal=882, idle=81511 + 190,
+                         total=63237 + 2177 + 14423 + 81511 + 190 + 0 + 261 + 882)
 
 
 def test_the_share_stolen_is_steal_over_every_tick_between_two_reads(tmp_path: Path) -> None:
@@ -31,6 +38,23 @@ def test_the_share_stolen_is_steal_over_every_tick_between_two_reads(tmp_path: P
     assert steal_fraction(a, b) == pytest.approx(0.1)
     assert steal_fraction(a, a) is None  # no tick passed
     assert steal_fraction(None, b) is None and steal_fraction(a, None) is None
+
+
+def test_the_busy_share_is_every_tick_but_idle_and_iowait(tmp_path: Path) -> None:
+    """1,000 ticks pass, 900 user and 100 steal, none idle: all busy; then 500 idle of 1,000."""
+    a = read_cpu_times(_stat(tmp_path, "a", 63237, 882))
+    b = read_cpu_times(_stat(tmp_path, "b", 63237 + 900, 982))
+    assert busy_fraction(a, b) == pytest.approx(1.0)
+    p = tmp_path / "c"
+    p.write_text(STAT.format(user=63237 + 1400, steal=982).replace(" 81511 ", " 82011 "))
+    c = read_cpu_times(p)
+    assert busy_fraction(b, c) == pytest.approx(0.5)
+    assert busy_fraction(a, a) is None and busy_fraction(None, b) is None
+
+
+def test_percents_join_known_and_unknown_shares() -> None:
+    assert percents([0.0123, None, 1.0]) == "1.2 / ? / 100.0"
+    assert percents([0.5], digits=0) == "50"
 
 
 @pytest.mark.parametrize("text", ["", "cpu 1 2 3\n", "intr 1 2 3 4 5 6 7 8 9\n",
