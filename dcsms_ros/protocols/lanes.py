@@ -109,19 +109,27 @@ class LaneSource:
     def __init__(self, alive: Callable[[int], bool]) -> None:
         self._alive = alive
         self.writers: list[int] = []
+        #: Counts the changes of :attr:`writers`: what was judged from them holds while it
+        #: stays the same.
+        self.version = 0
 
     def update(self, hellos: Iterable[int], byes: Iterable[int]) -> None:
         """Record control frames (in the order they were read)."""
         for pid in hellos:
             if pid not in self.writers:
                 self.writers.append(pid)
+                self.version += 1
         for pid in byes:
             if pid in self.writers:
                 self.writers.remove(pid)
+                self.version += 1
 
     def prune(self) -> None:
         """Forget writers whose process is gone."""
-        self.writers = [p for p in self.writers if self._alive(p)]
+        alive = [p for p in self.writers if self._alive(p)]
+        if len(alive) != len(self.writers):
+            self.writers = alive
+            self.version += 1
 
     def covered(self, dds_writers: int) -> bool:
         """True when every one of the ``dds_writers`` DDS writers the reader matched can be a

@@ -46,7 +46,7 @@ from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.localbus import LocalBus
 from dcsms_ros.ros.cpulatency import CpuLatencyRequest, hold_from_env
-from dcsms_ros.ros.laneinput import DDS, LANES, PROBE_S
+from dcsms_ros.ros.laneinput import DDS, LANES, MIXED, PROBE_S, STATE_S
 
 #: Wake-up of the hot thread when nothing arrives (s): bounds the reaction to a stop request.
 IDLE_S = 0.1
@@ -144,6 +144,11 @@ class HotLoop:
         #: paths with lanes (one process per node) and the pipe that wakes a wait on them
         self._lanes: list[Served] = []
         self._wake_r = self._wake_w = -1
+        #: what a wait on the lanes selects (the pipe, then the paths' FIFOs: fixed at start)
+        self._lane_fds: list[int] = []
+        #: how to wait (:meth:`_lane_wait`) and until when (monotonic s) that holds
+        self._lane_mode: str = DDS
+        self._lane_mode_until = -1.0
 
     @property
     def native_id(self) -> int | None:
@@ -168,6 +173,7 @@ class HotLoop:
         self._lanes = [p for p in self.paths if p.lane_fds()]
         if self._lanes:
             self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+            self._lane_fds = [self._wake_r, *(fd for p in self._lanes for fd in p.lane_fds())]
         self._guard = GuardCondition(None, None, context=self.context)
         self.context.on_shutdown(self._on_shutdown)
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
@@ -332,18 +338,31 @@ class HotLoop:
                     if nxt is not None:
                         timeout = min(timeout, max(nxt, 0.0))
 
+    def _lane_wait(self) -> str:
+        """How the loop waits: on the lanes alone (:data:`LANES`), on them polling DDS
+        (:data:`MIXED`) or on DDS (:data:`DDS`: no lane writer serves them yet, or a
+        subscription without a lane is served too); judged again after :data:`STATE_S`
+        (the paths' lane states are that old at most)."""
+        now = time.monotonic()
+        if now < self._lane_mode_until:
+            return self._lane_mode
+        states = {p.lane_state(now) for p in self._lanes}
+        if states == {DDS} or len(self._lanes) < len(self._serving):
+            mode = DDS
+        else:
+            mode = LANES if states == {LANES} else MIXED
+        self._lane_mode, self._lane_mode_until = mode, now + STATE_S
+        return mode
 
     def _wait_lanes(self, timeout: float) -> bool:
         """Wait on the paths' lanes (and the wake-up pipe) for at most ``timeout`` s, if a lane
         writer serves them; False (no wait) when none does: the loop waits on DDS then."""
-        now = time.monotonic()
-        states = {p.lane_state(now) for p in self._lanes}
-        if states == {DDS} or (len(self._lanes) < len(self._serving)):
+        mode = self._lane_wait()
+        if mode == DDS:
             return False
-        if states != {LANES}:
+        if mode != LANES:
             timeout = min(timeout, DDS_POLL_S)
-        fds = [self._wake_r, *(fd for p in self._lanes for fd in p.lane_fds())]
-        ready, _, _ = select.select(fds, (), (), max(timeout, 0.0))
+        ready, _, _ = select.select(self._lane_fds, (), (), max(timeout, 0.0))
         if self._wake_r in ready:
             with contextlib.suppress(OSError):
                 os.read(self._wake_r, 4096)

@@ -35,6 +35,12 @@ HELLO_WAIT_S = 0.3
 #: most that often (a read that finds nothing costs a system call).
 PROBE_S = 0.01
 
+#: How long (s) a lane input's state (:meth:`LaneInput.state`) is kept while no writer says
+#: hello or bye: the DDS matched-writer count it compares with is up to 1 ms old anyway
+#: (:class:`~dcsms_ros.protocols.matched.MatchCount`). Judging it at every wake-up, twice, cost
+#: a controller 3-5 % of its CPU per sample (same-run A/B, docs/performance.md, "Lane state").
+STATE_S = 1e-3
+
 #: :meth:`LaneInput.state`: every DDS writer serves the lane.
 LANES = "lanes"
 #: Some writers serve the lane, some only DDS.
@@ -64,13 +70,19 @@ class LaneInput:
         self._pending: list[tuple[bytes, int]] = []
         self._matched_at: float | None = None
         self._probe_at = 0.0
+        self._state, self._state_until, self._state_version = DDS, -1.0, -1
 
     def state(self, now: float) -> str:
-        """:data:`LANES`, :data:`MIXED` or :data:`DDS` (``now``: monotonic s)."""
+        """:data:`LANES`, :data:`MIXED` or :data:`DDS` (``now``: monotonic s), judged again
+        after :data:`STATE_S` or once a writer said hello or bye."""
+        source = self.reader.source
+        if now < self._state_until and source.version == self._state_version:
+            return self._state
+        version = source.version
         writers = self.reader.writers(now)
-        if not writers:
-            return DDS
-        return LANES if writers >= self._dds() else MIXED
+        state = DDS if not writers else LANES if writers >= self._dds() else MIXED
+        self._state, self._state_until, self._state_version = state, now + STATE_S, version
+        return state
 
     @property
     def pending(self) -> bool:
@@ -147,8 +159,6 @@ class LaneInput:
     def close(self) -> None:
         """Remove the lane."""
         self.reader.close()
-
-
 
 
 class PathLanes:
@@ -279,5 +289,5 @@ def _untimed(handler: Callable[[Any], None]) -> Callable[[Any, int], None]:
     return each
 
 
-__all__ = ["DDS", "HELLO_WAIT_S", "LANES", "MIXED", "PROBE_S", "LaneInput", "PathLanes",
-           "lanes_for"]
+__all__ = ["DDS", "HELLO_WAIT_S", "LANES", "MIXED", "PROBE_S", "STATE_S", "LaneInput",
+           "PathLanes", "lanes_for"]

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import fcntl
 import multiprocessing as mp
 import os
 import signal
+import termios
 import time
 from pathlib import Path
 
@@ -24,15 +26,25 @@ TOPIC = "/dcsms/velocity/stage1"
 CTX = mp.get_context("fork")
 
 
+def _queued(fd: int) -> int:
+    """Bytes waiting in the pipe behind ``fd`` (either end)."""
+    return int.from_bytes(fcntl.ioctl(fd, termios.FIONREAD, b"\0" * 4), "little")
+
+
 def _write(root: str, n: int, size: int, tag: int, drops: mp.Queue) -> None:
-    """A writer process: ``n`` messages of ``size`` bytes (``tag``, k as 4 bytes, filler),
-    paced in bursts of 100; puts how many its lane could not take."""
+    """A writer process: ``n`` messages of ``size`` bytes (``tag``, k as 4 bytes, filler) in
+    bursts of 100, each once the lane holds less than 16 KiB: two such writers never fill
+    even a default 64 KiB pipe, however late the reader is scheduled (a CI run lost 66 % to
+    a starved reader when bursts were paced by time); puts how many its lane could not take."""
     w = LaneWriter(TOPIC, Path(root))
     w.refresh()
+    (fd,) = w.lanes.values()
+    end = time.monotonic() + 30.0
     for k in range(n):
+        if k % 100 == 0:
+            while _queued(fd) >= 16 << 10 and time.monotonic() < end:
+                time.sleep(0.0002)
         w.write(bytes([tag]) + k.to_bytes(4, "little") + b"x" * (size - 5), time.time_ns())
-        if k % 100 == 99:
-            time.sleep(0.001)
     drops.put(w.table.drops)
     w.close()
 
@@ -47,10 +59,10 @@ def _drain(r: LaneReader, want: int, timeout_s: float = 20.0) -> list[tuple[byte
 
 def test_every_message_of_two_writer_processes_arrives_whole_and_in_each_writers_order(
         tmp_path: Path) -> None:
-    """Two processes write 20,000 messages each into one lane at once: the reader gets every
-    one its lane took (the writers count the rest: a starved reader's full pipe), each
-    writer's in order, none torn (a frame is one atomic pipe write), with both hellos and
-    byes."""
+    """Two processes write 20,000 messages each into one lane at once, never more than the
+    pipe holds: the reader gets every one, each writer's in order, none torn (a frame is one
+    atomic pipe write), with both hellos and byes. (A full lane's loss is counted: the next
+    test.)"""
     r = LaneReader(TOPIC, tmp_path, "/dcsms/reader")
     n, size = 20_000, 120
     drops: mp.Queue = CTX.Queue()
@@ -58,13 +70,12 @@ def test_every_message_of_two_writer_processes_arrives_whole_and_in_each_writers
              for tag in (1, 2)]
     for p in procs:
         p.start()
-    got = _drain(r, 2 * n, timeout_s=5.0)
+    got = _drain(r, 2 * n, timeout_s=30.0)
     for p in procs:
         p.join(10)
     got += r.read()
     lost = drops.get(timeout=5) + drops.get(timeout=5)
-    assert len(got) + lost == 2 * n
-    assert lost < n // 10
+    assert (len(got), lost) == (2 * n, 0)
     for tag in (1, 2):
         ks = [int.from_bytes(d[1:5], "little") for d, _ in got if d[0] == tag]
         assert ks == sorted(ks) and len(set(ks)) == len(ks)

@@ -18,9 +18,10 @@ from std_msgs.msg import Header
 
 from dcsms_ros.core import topics
 from dcsms_ros.ros import qos
+from dcsms_ros.ros.hostlane import LaneReader, LaneWriter
 from dcsms_ros.ros.hotpath import HotPath
 from dcsms_ros.ros.intraprocess import DirectPublisher
-from dcsms_ros.ros.laneinput import LANES, MIXED
+from dcsms_ros.ros.laneinput import DDS, LANES, MIXED, STATE_S, LaneInput
 
 DCSMS = [sys.executable, "-m", "dcsms_ros.cli"]
 LINE = re.compile(r"lanes: (\S+): (\d+) messages on lanes, (\d+) on DDS "
@@ -152,4 +153,36 @@ def test_a_lane_reader_hears_a_writer_without_a_lane_once_and_the_lane_writers_c
     reader.hot.stop()
     reader.hot.close_lanes()
     whot.close_lanes()
+    ex.shutdown()
+
+
+def test_a_lane_inputs_state_follows_a_hello_at_once_and_the_dds_count_within_state_s(
+        ctx, tmp_path):
+    """The state is kept for STATE_S (a real DDS reader's matched count), but a writer's hello
+    or bye changes it at the next look: before the hello DDS, after it LANES; a second DDS
+    writer without a lane shows as MIXED only once the kept state is STATE_S old."""
+    node = Node("lane_state_reader", context=ctx)
+    sub = node.create_subscription(Header, "/lane_state", lambda m: None, qos.stream_sub(True),
+                                   raw=True)
+    root = tmp_path / "lanes"
+    lane_in = LaneInput(sub, LaneReader("/lane_state", root, "/lane_state_reader"))
+    writers = [Node(f"lane_state_writer{i}", context=ctx) for i in range(2)]
+    pubs = [writers[0].create_publisher(Header, "/lane_state", qos.stream_pub(True))]
+    ex = executor_for(ctx, node, *writers)
+    assert spin_until(ex, lambda: sub.get_publisher_count() == 1, 20.0)
+    t = time.monotonic() + 1.0  # a clock of the test's own, past every kept state
+    assert lane_in.state(t) == DDS  # no hello yet
+    lane = LaneWriter("/lane_state", root)
+    lane.refresh()  # says hello
+    lane_in.poll()
+    assert lane_in.state(t) == LANES  # at the same instant: the hello is seen at once
+    pubs.append(writers[1].create_publisher(Header, "/lane_state", qos.stream_pub(True)))
+    assert spin_until(ex, lambda: sub.get_publisher_count() == 2, 20.0)
+    assert lane_in.state(t + 0.5 * STATE_S) == LANES  # kept
+    time.sleep(2 * STATE_S)  # the DDS count itself is up to 1 ms old (MatchCount's real clock)
+    assert lane_in.state(t + 1.5 * STATE_S) == MIXED  # judged again: a writer without a lane
+    lane.close()  # says bye
+    lane_in.poll()
+    assert lane_in.state(t + 1.6 * STATE_S) == DDS  # at once again
+    lane_in.close()
     ex.shutdown()

@@ -63,6 +63,23 @@ def test_a_reader_is_covered_only_while_every_dds_writer_said_hello_and_lives() 
     assert src.writers == [] and not src.covered(1)
 
 
+def test_the_version_counts_only_changes_of_the_writers() -> None:
+    """What a reader judged from its writers (its state) may be kept while the version holds."""
+    alive = {7, 8}
+    src = LaneSource(lambda pid: pid in alive)
+    v = src.version
+    src.update([7], [])
+    assert src.version == v + 1
+    src.update([7], [9])  # a repeated hello, a bye of no writer: no change
+    src.prune()  # everyone alive
+    assert src.version == v + 1
+    src.update([8], [7])
+    assert src.version == v + 3
+    alive.clear()
+    src.prune()
+    assert src.version == v + 4 and src.writers == []
+
+
 def test_each_delivered_message_cancels_one_copy_whenever_it_comes() -> None:
     ledger = CopyLedger(size=3)
     ledger.add(b"k=1")
