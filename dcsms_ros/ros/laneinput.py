@@ -38,7 +38,8 @@ PROBE_S = 0.01
 #: How long (s) a lane input's state (:meth:`LaneInput.state`) is kept while no writer says
 #: hello or bye: the DDS matched-writer count it compares with is up to 1 ms old anyway
 #: (:class:`~dcsms_ros.protocols.matched.MatchCount`). Judging it at every wake-up, twice, cost
-#: a controller 3-5 % of its CPU per sample (same-run A/B, docs/performance.md, "Lane state").
+#: a controller 3-5 % of its CPU per sample (same-run A/B: docs/performance.md, "A lane
+#: input's state once a millisecond").
 STATE_S = 1e-3
 
 #: :meth:`LaneInput.state`: every DDS writer serves the lane.
