@@ -237,7 +237,12 @@ class ControllerNode(GraphNode, Hosted):
                 or time.monotonic() - self._plant_seen > MATCH_TIMEOUT_S)
 
     def _watchdog_tick(self) -> float | None:
-        """Hot-loop tick: the watchdog when due; seconds until it is due again."""
+        """Hot-loop tick: the watchdog when due; seconds until it is due again. Run at every
+        wake-up, so the lock and the check are skipped while it is not due (it has nothing
+        to say then)."""
+        left = self.watchdog.wait_s(time.monotonic())
+        if left is None or left > 0.0:
+            return left
         self._watchdog_locked()
         return self.watchdog.wait_s(time.monotonic())
 

@@ -124,3 +124,24 @@ def test_a_stale_watchdog_repeats_every_quarter_timeout_however_often_asked() ->
     gaps = np.diff([t for t, _ in said])
     assert len(said) == pytest.approx((1.0 - 0.01) / 0.0025, abs=2)
     assert gaps.min() >= 0.0025 - 1e-9 and gaps.max() <= 0.0025 + 1e-4 + 1e-9
+
+
+@pytest.mark.parametrize("timeout_s", [0.001, 0.01, 0.025])
+def test_a_watchdog_that_waits_has_nothing_to_say(timeout_s: float) -> None:
+    """A controller's hot loop skips :meth:`Watchdog.check` while :meth:`Watchdog.wait_s` is
+    positive or None: at each of 0.1 ms steps over inputs that stop and resume, a check in
+    such a moment returns None, and the checks it does make say what checking always says."""
+    always, skipping = Watchdog(timeout_s), Watchdog(timeout_s)
+    rng = np.random.default_rng(7)
+    inputs = set(np.flatnonzero(rng.random(20_000) < 0.3).tolist()) - set(range(5_000, 9_000))
+    said_always, said_skipping = [], []
+    for k in range(20_000):
+        t = k * 1e-4
+        if k in inputs:
+            always.feed(t)
+            skipping.feed(t)
+        said_always.append(always.check(t))
+        left = skipping.wait_s(t)
+        said_skipping.append(None if left is None or left > 0.0 else skipping.check(t))
+    assert said_skipping == said_always
+    assert said_always.count(True) >= 1 and said_always.count(False) >= 1
