@@ -29,10 +29,8 @@ from __future__ import annotations
 import contextlib
 import gc
 import os
-import select
 import sys
 import threading
-import time
 import traceback
 from collections.abc import Callable
 from contextlib import ExitStack
@@ -46,7 +44,8 @@ from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.localbus import LocalBus
 from dcsms_ros.ros.cpulatency import CpuLatencyRequest, hold_from_env
-from dcsms_ros.ros.laneinput import DDS, LANES, MIXED, PROBE_S, STATE_S
+from dcsms_ros.ros.laneinput import PROBE_S
+from dcsms_ros.ros.lanewait import LanePath, LaneWait
 
 #: Wake-up of the hot thread when nothing arrives (s): bounds the reaction to a stop request.
 IDLE_S = 0.1
@@ -68,12 +67,6 @@ GIL_SWITCH_S = 2e-4
 SHARED_CORE_GIL_SWITCH_S = 5e-5
 
 
-#: Longest wait (s) on the lanes while a subscription also has a DDS writer without a lane
-#: (its DDS messages are taken after each wake-up; rare: another host's or a tool's writer of
-#: a topic the graph writes too).
-DDS_POLL_S = 0.001
-
-
 def settle_heap() -> None:
     """Collect the garbage of the start-up and freeze what survived (:func:`gc.freeze`): the
     imports and the nodes' objects (~10^6) are then left out of every later collection, so a
@@ -90,7 +83,7 @@ def enabled() -> bool:
     return os.environ.get("DCSMS_HOT_PATH", "1") not in ("0", "false", "no", "off")
 
 
-class Served(Protocol):
+class Served(LanePath, Protocol):
     """What a :class:`HotLoop` serves (a :class:`~.hotpath.HotPath`)."""
 
     node: Node
@@ -100,10 +93,6 @@ class Served(Protocol):
     def serve(self) -> int: ...
 
     def tick(self) -> float | None: ...
-
-    def lane_fds(self) -> list[int]: ...
-
-    def lane_state(self, now: float) -> str: ...
 
 
 class HotLoop:
@@ -141,14 +130,8 @@ class HotLoop:
         #: The CPU wake-up latency held while the loop runs under SCHED_FIFO (:mod:`.cpulatency`).
         self.cpu_latency: CpuLatencyRequest | None = None
         self._prioritized = threading.Event()
-        #: paths with lanes (one process per node) and the pipe that wakes a wait on them
-        self._lanes: list[Served] = []
-        self._wake_r = self._wake_w = -1
-        #: what a wait on the lanes selects (the pipe, then the paths' FIFOs: fixed at start)
-        self._lane_fds: list[int] = []
-        #: how to wait (:meth:`_lane_wait`) and until when (monotonic s) that holds
-        self._lane_mode: str = DDS
-        self._lane_mode_until = -1.0
+        #: the wait on the paths' lanes (one process per node; made at start)
+        self._lanes = LaneWait((), 0)
 
     @property
     def native_id(self) -> int | None:
@@ -170,10 +153,7 @@ class HotLoop:
         # only these have anything to take: composed, most paths' topics are all in process,
         # and a pass over every path took each one's lock for nothing
         self._serving = [p for p, subs in resolved if subs]
-        self._lanes = [p for p in self.paths if p.lane_fds()]
-        if self._lanes:
-            self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
-            self._lane_fds = [self._wake_r, *(fd for p in self._lanes for fd in p.lane_fds())]
+        self._lanes = LaneWait(self.paths, len(self._serving))
         self._guard = GuardCondition(None, None, context=self.context)
         self.context.on_shutdown(self._on_shutdown)
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
@@ -188,18 +168,13 @@ class HotLoop:
         self._event.set()
         if self._guard is not None and self._subs:
             self._guard.trigger()
-        self._wake_lanes()
-
-    def _wake_lanes(self) -> None:
-        if self._wake_w >= 0:
-            with contextlib.suppress(OSError):  # full: a wake-up is pending anyway
-                os.write(self._wake_w, b"w")
+        self._lanes.wake()
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Ask the thread to end and wait for it (idempotent)."""
         self._stop = True
         self._event.set()
-        self._wake_lanes()
+        self._lanes.wake()
         if self._thread is not None:
             if self._guard is not None:
                 with contextlib.suppress(Exception):
@@ -213,16 +188,12 @@ class HotLoop:
         if self.cpu_latency is not None:
             self.cpu_latency.close()
             self.cpu_latency = None
-        for fd in (self._wake_r, self._wake_w):
-            if fd >= 0:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        self._wake_r = self._wake_w = -1
+        self._lanes.close()
 
     def _on_shutdown(self) -> None:
         self._stop = True
         self._event.set()
-        self._wake_lanes()
+        self._lanes.wake()
         if self._guard is not None:
             with contextlib.suppress(Exception):  # the context may be gone already
                 self._guard.trigger()
@@ -302,7 +273,7 @@ class HotLoop:
                     self.wakeups += 1
                     if self._stop:
                         break
-                elif self._lanes and self._wait_lanes(timeout):
+                elif self._lanes and self._lanes.wait(timeout):
                     self.wakeups += 1
                     if self._stop:
                         break
@@ -337,36 +308,6 @@ class HotLoop:
                     nxt = p.tick()
                     if nxt is not None:
                         timeout = min(timeout, max(nxt, 0.0))
-
-    def _lane_wait(self) -> str:
-        """How the loop waits: on the lanes alone (:data:`LANES`), on them polling DDS
-        (:data:`MIXED`) or on DDS (:data:`DDS`: no lane writer serves them yet, or a
-        subscription without a lane is served too); judged again after :data:`STATE_S`
-        (the paths' lane states are that old at most)."""
-        now = time.monotonic()
-        if now < self._lane_mode_until:
-            return self._lane_mode
-        states = {p.lane_state(now) for p in self._lanes}
-        if states == {DDS} or len(self._lanes) < len(self._serving):
-            mode = DDS
-        else:
-            mode = LANES if states == {LANES} else MIXED
-        self._lane_mode, self._lane_mode_until = mode, now + STATE_S
-        return mode
-
-    def _wait_lanes(self, timeout: float) -> bool:
-        """Wait on the paths' lanes (and the wake-up pipe) for at most ``timeout`` s, if a lane
-        writer serves them; False (no wait) when none does: the loop waits on DDS then."""
-        mode = self._lane_wait()
-        if mode == DDS:
-            return False
-        if mode != LANES:
-            timeout = min(timeout, DDS_POLL_S)
-        ready, _, _ = select.select(self._lane_fds, (), (), max(timeout, 0.0))
-        if self._wake_r in ready:
-            with contextlib.suppress(OSError):
-                os.read(self._wake_r, 4096)
-        return True
 
 
 class DrivenContext(Context):

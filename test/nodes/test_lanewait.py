@@ -1,0 +1,96 @@
+"""A hot loop's wait on host lanes (real FIFOs and pipes, no ROS): which wait, kept how long."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from dcsms_ros.ros.hostlane import LaneReader, LaneWriter
+from dcsms_ros.ros.laneinput import DDS, LANES, MIXED, STATE_S
+from dcsms_ros.ros.lanewait import DDS_POLL_S, LaneWait
+
+TOPIC = "/dcsms/velocity/stage1"
+
+
+class _Path:
+    """A hot path whose lane state the test sets, over a real lane."""
+
+    def __init__(self, reader: LaneReader | None) -> None:
+        self.reader, self.state, self.asked = reader, DDS, 0
+
+    def lane_fds(self) -> list[int]:
+        return [self.reader.fd] if self.reader is not None else []
+
+    def lane_state(self, now: float) -> str:
+        self.asked += 1
+        return self.state
+
+
+@pytest.fixture
+def lane(tmp_path: Path):
+    r = LaneReader(TOPIC, tmp_path, "/dcsms/reader")
+    yield r
+    r.close()
+
+
+def test_a_dds_wait_is_judged_again_at_once_a_lanes_wait_is_kept_for_state_s(lane):
+    path = _Path(lane)
+    w = LaneWait([path], serving=1)
+    assert w.mode() == DDS and not w.wait(1.0)  # no wait: the loop waits on DDS
+    path.state = LANES  # a writer said hello
+    assert w.mode() == LANES  # at the next wake-up, not STATE_S later
+    path.state, asked = MIXED, path.asked
+    assert w.mode() == LANES and path.asked == asked  # kept, not asked
+    time.sleep(1.5 * STATE_S)
+    assert w.mode() == MIXED
+    w.close()
+
+
+def test_a_served_path_without_lanes_keeps_the_loop_on_dds(lane):
+    path = _Path(lane)
+    path.state = LANES
+    w = LaneWait([path, _Path(None)], serving=2)
+    assert w.paths == [path] and w.mode() == DDS and not w.wait(1.0)
+    w.close()
+    assert not LaneWait([_Path(None)], serving=1)  # nothing to wait on
+
+
+def test_a_lanes_wait_ends_at_a_message_a_wake_or_its_timeout_a_mixed_one_polls_dds(
+        lane, tmp_path: Path):
+    path = _Path(lane)
+    path.state = LANES
+    w = LaneWait([path], serving=1)
+    t0 = time.monotonic()
+    assert w.wait(0.05) and time.monotonic() - t0 >= 0.05 - 1e-3  # the timeout
+    writer = LaneWriter(TOPIC, tmp_path)
+    writer.refresh()
+    assert w.wait(5.0) and lane.read() == []  # its hello
+    threading.Timer(0.02, writer.write, (b"x", time.time_ns())).start()
+    t0 = time.monotonic()
+    assert w.wait(5.0) and time.monotonic() - t0 < 2.0  # the message
+    assert [d for d, _ in lane.read()] == [b"x"]
+    threading.Timer(0.02, w.wake).start()
+    t0 = time.monotonic()
+    assert w.wait(5.0) and time.monotonic() - t0 < 2.0  # the wake-up, drained by the wait
+    t0 = time.monotonic()
+    assert w.wait(0.05) and time.monotonic() - t0 >= 0.05 - 1e-3  # no wake-up left over
+    time.sleep(STATE_S)
+    path.state = MIXED
+    t0 = time.monotonic()
+    assert w.wait(5.0) and time.monotonic() - t0 < DDS_POLL_S + 0.5
+    writer.close()
+    w.close()
+    w.close()  # idempotent
+    w.wake()  # after close: nothing to write to, no error
+
+
+def test_the_pipe_is_closed(lane):
+    path = _Path(lane)
+    w = LaneWait([path], serving=1)
+    fds = set(os.listdir("/proc/self/fd"))
+    w.close()
+    assert len(fds - set(os.listdir("/proc/self/fd"))) == 2
