@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import relay_floor
 from graph_run import env, run_graph
 
@@ -182,7 +183,7 @@ def cpu_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
         rows.append({"name": f"graph: CPU per sample, per process, recording on, {name}",
                      "value": value, "unit": "us", "baseline_name": base_name,
                      "baseline": base_v, "target_max": target, "note": note})
-    return [*rows, relay_row(smoke)]
+    return [*rows, relay_row(smoke), *answer_rows(smoke)]
 
 
 def relay_row(smoke: bool) -> Row:
@@ -202,4 +203,27 @@ def relay_row(smoke: bool) -> Row:
                     f"{'granted' if spread['fifo'] else 'not granted'}"}
 
 
-__all__ = ["CPU_ORDER", "CPU_TARGETS_US", "late_per_sample", "per_process_rows", "user_run"]
+
+def answer_rows(smoke: bool) -> list[Row]:
+    """A controller's work above the relay's floor (``relay_floor.py --answer``): the same
+    answers computed through the package's parts called flat, and written out in the loop;
+    the rounds in turn, each figure the median of the rounds' differences with the plain
+    relay of their round."""
+    seconds = 0.5 if smoke else 8.0
+    r = relay_floor.answer_rounds(seconds, 0 if smoke else 50, 1 if smoke else 4)
+    rounds = len(r["relay_us"])
+
+    def above(work: str) -> list[float]:
+        return sorted(w - f for w, f in zip(r[f"{work}_us"], r["relay_us"], strict=True))
+
+    note = (f"{rounds} rounds of {seconds:g} s, spread over two cores; the plain relay "
+            f"{min(r['relay_us']):.0f}-{max(r['relay_us']):.0f} us a message")
+    return [{"name": f"graph: a controller's answer {what}, CPU per message above the relay",
+             "value": float(np.median(d)), "unit": "us",
+             "note": f"{note}; per round {', '.join(f'{v:+.1f}' for v in d)}"}
+            for what, d in (("through the package's parts", above("answer")),
+                            ("written out in the loop", above("inline")))]
+
+
+__all__ = ["CPU_ORDER", "CPU_TARGETS_US", "answer_rows", "late_per_sample", "per_process_rows",
+           "user_run"]

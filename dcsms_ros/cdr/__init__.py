@@ -38,6 +38,7 @@ from dcsms_ros.cdr.decode import (
     read_header,
     read_stamp,
     read_stamped,
+    read_stamped_floats,
     typestore,
 )
 from dcsms_ros.cdr.encode import (
@@ -72,5 +73,6 @@ __all__ = [
     "JointStateReader", "JointStateWriter", "Layout", "StampedWriter", "decode_batch",
     "decode_rows", "decode_string", "deserialize", "encode_clock", "encode_joint_state",
     "encode_rows", "encode_stamped", "encode_string", "header_bytes", "message_layout",
-    "read_frame", "read_header", "read_layout", "read_stamp", "read_stamped", "typestore",
+    "read_frame", "read_header", "read_layout", "read_stamp", "read_stamped",
+    "read_stamped_floats", "typestore",
 ]

@@ -131,19 +131,26 @@ def read_stamped(buf: bytes, msgtype: str, dof: int) -> tuple[int, Array]:
     ValueError
         Neither the fast path nor rosbags (big-endian CDR) can read ``buf``.
     """
+    ns, v = read_stamped_floats(buf, msgtype, dof)
+    return ns, np.array(v)
+
+
+def read_stamped_floats(buf: bytes, msgtype: str, dof: int) -> tuple[int, tuple[float, ...]]:
+    """:func:`read_stamped` with the vector as Python floats (a controller's sample stays on
+    floats from its message to its message: :meth:`.controllers.FeedbackLoop.step_floats`)."""
     if buf[:2] == CDR_LE and len(buf) >= _FRAME_TEXT:
         n = unpack_u32(buf, FRAME_AT)[0]
         off, size = _VECTOR_AT.get(n) or _vector_at(n, len(buf))
         if len(buf) >= size:
             sec, nsec = unpack_stamp(buf, STAMP_AT)
             if dof == 1:
-                return sec * NS + nsec, np.array(unpack_f8(buf, off + 16))  # z
-            return sec * NS + nsec, np.array(unpack_f8x6(buf, off))
+                return sec * NS + nsec, unpack_f8(buf, off + 16)  # z
+            return sec * NS + nsec, unpack_f8x6(buf, off)
     m = deserialize(buf, msgtype)
     a, b = (m.twist.linear, m.twist.angular) if msgtype == layout.TWIST_STAMPED else \
         (m.wrench.force, m.wrench.torque)
-    v = np.array([a.z]) if dof == 1 else np.array([a.x, a.y, a.z, b.x, b.y, b.z])
-    return _time_ns(m.header.stamp), v
+    v = (a.z,) if dof == 1 else (a.x, a.y, a.z, b.x, b.y, b.z)
+    return _time_ns(m.header.stamp), tuple(float(f) for f in v)
 
 
 def read_header(buf: bytes, msgtype: str = layout.HEADER) -> tuple[int, str]:
@@ -384,4 +391,4 @@ def _slow(msgtype: str, buffers: Sequence[bytes | memoryview]) -> Batch:
 
 __all__ = ["BATCH_TYPES", "Batch", "BatchReader", "JointStateReader", "decode_batch", "decode_rows",
            "decode_string", "deserialize", "read_frame", "read_header", "read_stamp",
-           "read_stamped", "typestore"]
+           "read_stamped", "read_stamped_floats", "typestore"]

@@ -49,15 +49,16 @@ class StampedWriter:
         self._off = lay.fields[layout.VECTOR_FIELD[msgtype]][0]
         self.dof = dof
 
-    def encode(self, ns: int, v: Array) -> bytes:
-        """CDR bytes of the message stamped ``ns`` (int ns) carrying ``v`` (dof,)."""
+    def encode(self, ns: int, v: Array | Sequence[float]) -> bytes:
+        """CDR bytes of the message stamped ``ns`` (int ns) carrying ``v`` (dof,), an array or
+        Python floats."""
         b = bytearray(self._template)
         pack_stamp(b, STAMP_AT, ns // NS, ns % NS)
         if self.dof == 1:
             pack_f8(b, self._off + 16, float(v[0]))  # z: the third float64
         else:
             # one C call for the six floats: 0.7 us against 2.3 us for a float() per element
-            pack_f8x6(b, self._off, *np.asarray(v)[:6].tolist())
+            pack_f8x6(b, self._off, *(v.tolist() if isinstance(v, np.ndarray) else v)[:6])
         return bytes(b)
 
 

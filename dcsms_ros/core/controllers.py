@@ -8,6 +8,7 @@ sample whose forces clip restores the filter state from before that sample.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -228,12 +229,18 @@ class _Loop:
         counts it). Forces beyond the actuator limit are clipped (``saturations`` counts the
         samples) and that sample's filter update is undone.
         """
-        # a few floats per sample: Python floats, not numpy calls (the same operations, so
-        # the same bits as the batch engine's compiled loop; test_engine_fast holds it)
-        x = np.asarray(twist, dtype=np.float64).tolist()
+        return np.array(self.step_floats(np.asarray(twist, dtype=np.float64).tolist()))
+
+    def step_floats(self, x: Sequence[float]) -> list[float]:
+        """:meth:`step` on Python floats: twist (dof,) -> wrench (dof,), the same operations
+        and counters. A node's sample is a few floats from its message to its message: on
+        floats end to end it makes no numpy call unless an actuator nears its limit."""
+        # the same operations as the batch engine's compiled loop, so the same bits
+        # (test_engine_fast holds it)
         fade = self.fader.step()
         if not all(map(math.isfinite, x)):
-            return self._rejected()
+            self._count_rejected()
+            return [0.0] * self.dof
         self._saved_flat[:] = self._state_flat  # get_state(saved) without the numpy call
         filt, axes = self._filter, self._axes_list
         u = [x[a] for a in axes]
@@ -241,16 +248,18 @@ class _Loop:
         wl = [0.0] * self.dof
         for a, ya in zip(axes, y, strict=True):
             wl[a] = -fade * ya
-        w = np.array(wl)
         self.last_saturated = 0
         if fade == 0.0 or max(map(abs, wl)) <= self.allocator.safe_wrench:
-            return w  # the usual sample: no actuator near its limit (the allocation costs 1.7 us)
-        return self._allocated(w)
+            return wl  # the usual sample: no actuator near its limit (the allocation costs 1.7 us)
+        return self._allocated(np.array(wl)).tolist()
+
+    def _count_rejected(self) -> None:
+        self.nonfinite += 1
+        self.last_saturated = 0
 
     def _rejected(self) -> Array:
         """A non-finite twist's answer: zero wrench, counted, the states untouched."""
-        self.nonfinite += 1
-        self.last_saturated = 0
+        self._count_rejected()
         return np.zeros(self.dof)
 
     def _allocated(self, w: Array) -> Array:

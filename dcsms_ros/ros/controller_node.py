@@ -30,14 +30,13 @@ import threading
 import time
 from collections.abc import Callable
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rclpy.logging import LoggingSeverity
 from std_msgs.msg import Int64
 from std_srvs.srv import SetBool
 
-from dcsms_ros.cdr import TWIST_STAMPED, WRENCH_STAMPED, StampedWriter, read_stamped
+from dcsms_ros.cdr import TWIST_STAMPED, WRENCH_STAMPED, StampedWriter, read_stamped_floats
 from dcsms_ros.core import topics
 from dcsms_ros.core.compiledcontrol import controller
 from dcsms_ros.core.config import SystemConfig
@@ -128,7 +127,7 @@ class ControllerNode(GraphNode, Hosted):
         self.hot.subscribe(TwistStamped, topics.LOCAL.velocity(body), self._on_velocity,
                            qos.stream_sub(self.lockstep), raw=True)
         self.create_service(SetBool, "~/enable", self._on_enable)
-        self._zero = np.zeros(self.dof)
+        self._zero = [0.0] * self.dof
         # lockstep: the first sample is answered (the loop stepped) only once the output
         # reaches every reader; the plant retransmits it meanwhile
         self.answers = answerer(self, self.pub.publish, self.lockstep, [self.pub],
@@ -174,10 +173,12 @@ class ControllerNode(GraphNode, Hosted):
 
     # -- the loop ----------------------------------------------------------------------------
     def _on_velocity(self, buf: bytes) -> None:
-        ns, x = read_stamped(buf, TWIST_STAMPED, self.dof)
+        # on Python floats from message to message: a numpy call costs several times its
+        # back-to-back price once every 500 us (bench/relay_floor.py --answer)
+        ns, x = read_stamped_floats(buf, TWIST_STAMPED, self.dof)
         # implausible (non-finite, > 10 m/s): counted and logged here, NaN for the loop, which
         # answers it with zero force (lockstep goes on) and leaves its filters untouched
-        x = self.guard.clean(x, np.nan)
+        x = self.guard.clean_floats(x, math.nan)
         if not self.answers.due(ns):
             return
         last = self.answers.last_ns
@@ -195,8 +196,8 @@ class ControllerNode(GraphNode, Hosted):
         if not self._linked and self._reaches_actuators(ns):
             self._linked = True
             self.loop.prime(x)  # joining a running plant: no filter start-up transient
-        w = self.loop.step(x) if self._linked else self._zero
-        if not all(map(math.isfinite, w.tolist())):  # a NaN must never reach an actuator
+        w = self.loop.step_floats(x) if self._linked else self._zero
+        if not all(map(math.isfinite, w)):  # a NaN must never reach an actuator
             self.nonfinite_out += 1
             w = self._zero
         age = self.age

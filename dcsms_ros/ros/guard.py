@@ -44,6 +44,15 @@ class InputGuard:
         lim = self.limit
         return all(abs(v) <= lim for v in x.tolist())  # NaN compares False
 
+    def clean_floats(self, x: tuple[float, ...], fill: float) -> tuple[float, ...]:
+        """:meth:`clean` on Python floats (a controller's sample): ``x`` itself if plausible,
+        else ``fill`` for every element (counted)."""
+        lim = self.limit
+        if all(abs(v) <= lim for v in x):  # NaN compares False
+            return x
+        self._reject(np.array(x))
+        return (fill,) * len(x)
+
     def ok(self, x: NDArray[np.float64]) -> bool:
         """True if ``x`` is plausible; else count and log it and return False."""
         if self.plausible(x):

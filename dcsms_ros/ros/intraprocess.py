@@ -37,7 +37,7 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy
 
 from dcsms_ros.protocols.localbus import BusWriter, LocalBus
-from dcsms_ros.protocols.matched import HeldHistory, MatchCount
+from dcsms_ros.protocols.matched import MATCH_REFRESH_NS, HeldHistory, MatchCount
 from dcsms_ros.ros.hostlane import LaneWriter
 
 
@@ -150,8 +150,13 @@ class DirectPublisher(_Wrapped):
         #: until its process leaves DDS: a node still answering while the plant closes).
         self.on_dds_after_leave = 0
         self._raw: Callable[[bytes], None] = pub.handle.publish_raw
-        self._matched = MatchCount(pub.handle.get_subscription_count)
+        self._ask: Callable[[], int] = pub.handle.get_subscription_count
+        self._matched = MatchCount(self._ask)
         self._durable = pub.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+        # with lanes: whether every message goes on DDS too, and until when that holds
+        self._on_dds = False
+        self._route_due = -1
+        self._route_left = 0
         self._observer: Callable[[bytes, int], None] | None = None
         #: whether :meth:`observe` added an observer
         self.observed = False
@@ -165,11 +170,12 @@ class DirectPublisher(_Wrapped):
         obs = self._observer
         lane = self.lane
         if lane is not None:
+            now_ns = time.monotonic_ns()
+            if now_ns >= self._route_due or lane.left != self._route_left:
+                self._route(lane, now_ns)  # first: a reader found now gets this message too
             t_ns = time.time_ns()
-            # first: a reader found now gets this message too
-            dds = lane.dds(self._matched(), time.monotonic_ns(), len(data))
-            lane.write(data, t_ns)
-            if dds:
+            # on DDS too: too long for a lane, or a DDS reader without one
+            if not lane.write(data, t_ns) or self._on_dds:
                 self._raw(data)
                 self.on_dds += 1
                 if lane.left:
@@ -184,6 +190,15 @@ class DirectPublisher(_Wrapped):
             self._raw(data)
         obs(data, time.time_ns())
 
+
+    def _route(self, lane: LaneWriter, now_ns: int) -> None:
+        """Judge whether the messages go on DDS too (:meth:`.LaneWriter.dds`), for the next
+        :data:`~dcsms_ros.protocols.matched.MATCH_REFRESH_NS` or until a lane closes: the DDS
+        count is asked that often anyway, and judged once per message the decision cost a
+        process per node ~4 Python calls a message (5 messages a sample in the plant)."""
+        self._on_dds = lane.dds(int(self._ask()), now_ns, 0)
+        self._route_due = now_ns + MATCH_REFRESH_NS
+        self._route_left = lane.left
 
     def observe(self, observer: Callable[[bytes, int], None]) -> None:
         """After each publication, call ``observer(data, t_ns)``: the bytes and the system

@@ -95,10 +95,11 @@ class LaneInput:
         the readiness check learns of new lane writers before the hot loop reads."""
         self._pending += self.reader.read()
 
-    def drain(self, handler: Callable[[Any, int], None], latest_only: bool = False) -> int:
+    def drain(self, handler: Callable[..., None], latest_only: bool = False,
+              timed: bool = True) -> int:
         """Deliver what arrived, oldest first: ``handler(data, t_ns)`` (``t_ns``: publication
-        on the lane, DDS reception; system clock). ``latest_only``: only the newest (a keep-last
-        1 reader). Returns how many."""
+        on the lane, DDS reception; system clock), ``handler(data)`` if not ``timed``.
+        ``latest_only``: only the newest (a keep-last 1 reader). Returns how many."""
         now = time.monotonic()
         if self._pending or self.reader.source.writers or now >= self._probe_at:
             got = self._pending + self.reader.read() if self._pending else self.reader.read()
@@ -115,8 +116,12 @@ class LaneInput:
             return 0
         if latest_only and len(got) > 1:
             got = got[-1:]
-        for data, t in got:
-            handler(data, t)
+        if timed:
+            for data, t in got:
+                handler(data, t)
+        else:  # no wrapper dropping the time: a call less per message
+            for data, _t in got:
+                handler(data)
         return len(got)
 
     def _take_dds(self) -> list[tuple[bytes, int]]:
@@ -179,8 +184,8 @@ class PathLanes:
     def __init__(self, node: Node, root: Path) -> None:
         self.node, self.root = node, root
         self.inputs: dict[Subscription, LaneInput] = {}
-        #: served inputs: input, handler of (data, t_ns), flush, keep-last 1
-        self._served: list[tuple[LaneInput, Callable[[Any, int], None],
+        #: served inputs: input, handler of the data, flush, keep-last 1
+        self._served: list[tuple[LaneInput, Callable[[Any], None],
                                  Callable[[], None] | None, bool]] = []
         self.writers: list[LaneWriter] = []
 
@@ -199,8 +204,7 @@ class PathLanes:
                     latest_only: bool) -> None:
         """``sub``'s lane ``reader``, whose messages :meth:`serve` hands to ``handler(data)``
         (``flush()`` after each round that delivered; ``latest_only``: keep-last 1)."""
-        self._served.append((self.detached_input(sub, reader), _untimed(handler), flush,
-                             latest_only))
+        self._served.append((self.detached_input(sub, reader), handler, flush, latest_only))
 
     def detached_input(self, sub: Subscription, reader: LaneReader) -> LaneInput:
         """``sub``'s lane ``reader``, drained by its owner (:meth:`LaneInput.drain`)."""
@@ -218,8 +222,8 @@ class PathLanes:
     def serve(self) -> int:
         """Deliver what arrived for the served inputs; returns how many."""
         n = 0
-        for lane, each, flush, latest in self._served:
-            got = lane.drain(each, latest)
+        for lane, handler, flush, latest in self._served:
+            got = lane.drain(handler, latest, timed=False)
             if got:
                 n += got
                 if flush is not None:
@@ -281,13 +285,6 @@ def _reader_nodes(node: Node, topic: str) -> tuple[list[str], bool]:
     infos = node.get_subscriptions_info_by_topic(topic)
     return ([f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos],
             all(i.node_name != UNKNOWN_NODE for i in infos))
-
-
-def _untimed(handler: Callable[[Any], None]) -> Callable[[Any, int], None]:
-    """``handler`` called with the message only (a lane delivers its time too)."""
-    def each(msg: Any, _t_ns: int) -> None:
-        handler(msg)
-    return each
 
 
 __all__ = ["DDS", "HELLO_WAIT_S", "LANES", "MIXED", "PROBE_S", "STATE_S", "LaneInput",

@@ -197,3 +197,21 @@ def test_string_has_no_fixed_layout():
     with pytest.raises(ValueError, match="no fixed layout"):
         cdr.message_layout(cdr.STRING)
     assert cdr.decode_string(cdr.encode_string("FBC")) == "FBC"
+
+
+@pytest.mark.parametrize("dof", [1, 6])
+@pytest.mark.parametrize("frame", ["stage1", "a_longer_frame_id"])
+def test_the_floats_reader_and_writer_are_the_arrays_to_the_bit(dof: int, frame: str) -> None:
+    """read_stamped_floats gives read_stamped's values as a tuple of Python floats, and a
+    writer packs Python floats into the same bytes as the array (NaN and signed zero too)."""
+    for msgtype in (cdr.TWIST_STAMPED, cdr.WRENCH_STAMPED):
+        w = cdr.StampedWriter(msgtype, frame, dof)
+        v = np.array([-0.0, 1e-300, np.nan, -np.inf, 3.25, 7e12])[:dof]
+        buf = w.encode(1_234_567_890_123, v)
+        assert w.encode(1_234_567_890_123, v.tolist()) == buf
+        assert w.encode(1_234_567_890_123, tuple(v.tolist())) == buf
+        ns, got = cdr.read_stamped_floats(buf, msgtype, dof)
+        ns_a, want = cdr.read_stamped(buf, msgtype, dof)
+        assert ns == ns_a == 1_234_567_890_123
+        assert type(got) is tuple and all(type(f) is float for f in got)
+        assert np.array(got).tobytes() == want.tobytes()

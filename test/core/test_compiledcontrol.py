@@ -124,3 +124,29 @@ def test_controller_builds_the_objects_without_numba_or_when_asked(
     monkeypatch.setattr(compiledcontrol, "available", lambda: False)
     assert type(controller(cfg, "ff_stage1")) is FeedforwardLoop
     assert type(controller(cfg, "fb_stage2")) is FeedbackLoop
+
+
+@pytest.mark.parametrize("name", ["table1.yaml", "tem_three_point.yaml"])
+@pytest.mark.parametrize("cid", IDS)
+def test_step_floats_is_step_to_the_bit_object_and_compiled(name: str, cid: str) -> None:
+    """A node's floats path (tuples in, lists of Python floats out) answers as the arrays'
+    path, through a sweep that saturates and feeds NaN and inf, with fades and a prime."""
+    cfg = load_config(CONFIG / name)
+    ref = make_controller(cfg, cid, enabled=False)
+    loops = [make_controller(cfg, cid, enabled=False), controller(cfg, cid, enabled=False)]
+    x = _twists(cfg.plant.dof, 3000, 11)
+    for k, twist in enumerate(x):
+        for c in (ref, *loops):
+            if k in (0, 1900):
+                c.enable(True)
+            if k == 1500:
+                c.enable(False)
+            if k == 700:
+                c.prime(tuple(x[k - 1].tolist()))
+        want = ref.step(twist)
+        for c in loops:
+            got = c.step_floats(tuple(twist.tolist()))
+            assert type(got) is list and all(type(v) is float for v in got)
+            assert_array_equal(np.array(got), want, err_msg=f"sample {k}")
+            _same(ref, c, f"sample {k}")
+    assert ref.nonfinite > 0 and ref.saturations > 0
