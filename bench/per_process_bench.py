@@ -37,11 +37,12 @@ LATE_MAX = 0.01
 CPU_WHY = ("NOT met: a process that only relays each message, woken across cores as the "
            "kernel places the graph's real-time threads, costs half to all of a controller's "
            "target depending on the hour (the relay row below: 19.6-50 us on this host); the "
-           "rest is the interpreter, cold at every wake-up: the same Python costs 2-2.5x its "
-           "back-to-back CPU once every 500 us (1.1-1.6x in 5 of 6 runs with idle cores "
-           "polling, the default under SCHED_FIFO); of a controller's hot thread 67 % is "
-           "libpython and 15 % the kernel switching it back in (perf, cpu-clock, 3 s), for ~130 "
-           "calls (Python and C) a sample; the plant publishes 5 messages, drains 3 lanes and "
+           "rest is the interpreter, cold at every wake-up: a controller's work written out in "
+           "the loop costs the relay + 3-8 us, the same work through the package's parts + "
+           "24-38 us, the node (its hot loop, lane input, publisher, part recorder) ~+20 us "
+           "more (the answer rows below); of a controller's hot thread 64 % is libpython and "
+           "15 % the kernel switching it back in (perf, cpu-clock); the plant publishes 5 "
+           "messages (its 3 true twists, recorded only, ~14 % of its CPU), drains 3 lanes and "
            "steps; docs/performance.md)")
 #: CPU per sample (us) each node of the per-process graph may spend, recorder per message.
 CPU_TARGETS_US = {"plant_simulator": 100.0, "sensor_decoupling": 60.0, "fb_stage1": 40.0,

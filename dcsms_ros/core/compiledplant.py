@@ -138,9 +138,11 @@ class CompiledPlant(PlantSimulator):
                                        np.array([self._row_of(c) for c in ids], np.int64))
         rows, dof = got[0], self.dof
         for i, (cid, w) in enumerate(wrenches.items()):
-            v = w if w.__class__ is np.ndarray and w.ndim == 1 else np.ravel(w)
-            if v.shape[0] != dof:
-                raise ValueError(f"{cid}: wrench of {v.shape[0]} components, the plant has "
+            # a node's forces are tuples of floats (read_stamped_floats): no array made
+            v = w if w.__class__ is tuple or (w.__class__ is np.ndarray and w.ndim == 1) \
+                else np.ravel(w)
+            if len(v) != dof:
+                raise ValueError(f"{cid}: wrench of {len(v)} components, the plant has "
                                  f"{dof} degrees of freedom")
             rows[i] = v
         return got

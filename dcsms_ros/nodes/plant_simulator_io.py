@@ -177,7 +177,7 @@ class PlantIO:
         self._ring[k % RING] = t_pub
         if self._timing:
             self._t_pub.append(t_pub)
-        truth = self.sim.truth().copy()
+        truth = self.sim.truth().tolist()  # rows of floats: no row view or scalar per body
         raw = self.sim.measure()
         self._raw_msg = self._w_raw.encode(ns, raw)
         self.pub_raw.publish(self._raw_msg)

@@ -142,7 +142,8 @@ class SensorDecouplingNode(GraphNode, Hosted):
                                         f"body samples zeroed")
 
     def _encode(self, ns: int, tw: np.ndarray) -> list[bytes]:
-        return [w.encode(ns, tw[i]) for i, w in enumerate(self.writers)]
+        rows = tw.tolist()  # one numpy call, not a row view and a scalar per body
+        return [w.encode(ns, rows[i]) for i, w in enumerate(self.writers)]
 
     def _answer(self) -> None:
         """Real time: publish the answer to the newest sample read at this wake-up."""

@@ -25,9 +25,11 @@ pytestmark = pytest.mark.skipif(not fastsim.available(), reason="numba is not in
 
 
 def _run_both(a: PlantSimulator, b: PlantSimulator, samples: int, seed: int = 5,
-              excite_every: int = 3, nan_every: int = 97, loud_every: int = 7) -> None:
+              excite_every: int = 3, nan_every: int = 97, loud_every: int = 7,
+              tuples: bool = False) -> None:
     """Step both with the same wrenches (some saturating, some non-finite, an excitation every
-    ``excite_every`` samples) and compare everything a node reads of them."""
+    ``excite_every`` samples) and compare everything a node reads of them; ``tuples``: ``b``
+    gets them as tuples of Python floats, as the plant node reads them."""
     rng = np.random.default_rng(seed)
     n, dof = a.cfg.plant.num_stages, a.dof
     ids = [c for c in ("fb_stage1", "ff_stage1", "fb_stage2") if int(c[-1]) <= n]
@@ -44,19 +46,22 @@ def _run_both(a: PlantSimulator, b: PlantSimulator, samples: int, seed: int = 5,
         exc = (rng.normal(0.0, 0.01, (n, dof)) if k % excite_every == 0 else None)
         if exc is not None and k % (nan_every * excite_every) == 0:
             exc[0, 0] = np.inf
+        wb = {c: tuple(v.tolist()) for c, v in w.items()} if tuples else w
         assert_array_equal(a.advance({c: v.copy() for c, v in w.items()}, exc),
-                           b.advance(w, exc), err_msg=f"applied at {k}")
+                           b.advance(wb, exc), err_msg=f"applied at {k}")
         assert (a.k, a.saturations, a.nonfinite_inputs) == (b.k, b.saturations,
                                                              b.nonfinite_inputs)
 
 
+@pytest.mark.parametrize("tuples", [False, True])
 @pytest.mark.parametrize("name", ["table1.yaml", "tem_three_point.yaml", "tem_paper_fit.yaml"])
-def test_the_compiled_plant_is_the_object_path_to_the_bit(name: str) -> None:
+def test_the_compiled_plant_is_the_object_path_to_the_bit(name: str, tuples: bool) -> None:
     """Over 2.5 draw and noise blocks, with saturation, non-finite wrenches and excitation;
-    the compiled plant's band-passes run compiled, the object's in Python."""
+    the compiled plant's band-passes run compiled, the object's in Python; the compiled one's
+    wrenches as arrays or as tuples of floats."""
     cfg = load_config(CONFIG / name)
     a, b = PlantSimulator(cfg, seed=11), CompiledPlant(cfg, seed=11)
-    _run_both(a, b, SPAN)
+    _run_both(a, b, SPAN, tuples=tuples)
     assert a.saturations > 0 and a.nonfinite_inputs > 0  # the test reached those paths
 
 
@@ -73,10 +78,11 @@ def test_a_wrench_of_the_wrong_size_is_refused_as_the_object_path_refuses_it() -
     cfg = load_config(CONFIG / "table1.yaml")
     msgs = []
     for sim in (PlantSimulator(cfg), CompiledPlant(cfg)):
-        with pytest.raises(ValueError) as err:
-            sim.advance({"fb_stage1": np.zeros(cfg.plant.dof + 1)})
-        msgs.append(str(err.value))
-    assert msgs[0] == msgs[1] and "degrees of freedom" in msgs[0]
+        for w in (np.zeros(cfg.plant.dof + 1), (0.0,) * (cfg.plant.dof + 1)):
+            with pytest.raises(ValueError) as err:
+                sim.advance({"fb_stage1": w})
+            msgs.append(str(err.value))
+    assert len(set(msgs)) == 1 and "degrees of freedom" in msgs[0]
 
 
 def test_building_it_leaves_the_state_at_rest() -> None:
