@@ -134,9 +134,11 @@ class LaneReader:
         The lanes' directory (:func:`lane_root`).
     node : str
         The reading node's fully qualified name (writers tell its DDS reader by it).
+    pipe_size : int
+        The pipe buffer to ask for, bytes.
     """
 
-    def __init__(self, topic: str, root: Path, node: str) -> None:
+    def __init__(self, topic: str, root: Path, node: str, pipe_size: int = PIPE_SIZE) -> None:
         self.topic = topic
         d = topic_dir(topic, root)
         d.mkdir(parents=True, exist_ok=True)
@@ -150,8 +152,14 @@ class LaneReader:
             os.unlink(self.path)
         os.mkfifo(self.path, 0o600)
         self.fd = os.open(self.path, os.O_RDWR | os.O_NONBLOCK | os.O_CLOEXEC)
-        with contextlib.suppress(OSError):  # the default (64 KiB) still works
-            fcntl.fcntl(self.fd, fcntl.F_SETPIPE_SZ, PIPE_SIZE)
+        #: Why the kernel refused ``pipe_size`` (empty if it did not).
+        self.refused = ""
+        try:
+            fcntl.fcntl(self.fd, fcntl.F_SETPIPE_SZ, pipe_size)
+        except OSError as exc:  # the user's pipe quota or fs.pipe-max-size: 64 KiB still works
+            self.refused = exc.strerror or str(exc)
+        #: The pipe buffer the lane has, bytes.
+        self.capacity = int(fcntl.fcntl(self.fd, fcntl.F_GETPIPE_SZ))
         self._buf = FrameBuffer()
         #: The lane writers serving this reader.
         self.source = LaneSource(pid_alive)

@@ -194,10 +194,16 @@ class PathLanes:
         reader, so that no writer matches that reader without finding its lane; None (a
         warning, and the subscription reads DDS alone) if it could not be made."""
         try:
-            return LaneReader(topic, self.root, self.node.get_fully_qualified_name())
+            r = LaneReader(topic, self.root, self.node.get_fully_qualified_name())
         except OSError as exc:  # e.g. a file system without FIFOs
             self.node.get_logger().warning(f"no host lane for {topic} ({exc}): DDS only")
             return None
+        if r.refused:
+            self.node.get_logger().warning(
+                f"host lane for {topic}: a {hostlane.PIPE_SIZE}-byte pipe refused "
+                f"({r.refused}: the user's pipe quota or fs.pipe-max-size), {r.capacity} "
+                f"bytes: a reader that falls behind loses messages sooner")
+        return r
 
     def serve_input(self, sub: Subscription, reader: LaneReader,
                     handler: Callable[[Any], None], flush: Callable[[], None] | None,

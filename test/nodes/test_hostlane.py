@@ -214,3 +214,25 @@ def test_a_message_too_long_for_a_lane_is_refused(tmp_path: Path) -> None:
     assert [len(d) for d, _ in r.read()] == [4084]
     w.close()
     r.close()
+
+
+def test_a_refused_pipe_size_is_said_and_the_lane_still_works(tmp_path: Path) -> None:
+    """The kernel refuses a pipe above fs.pipe-max-size to a process without the privilege
+    (128 MiB: refused to root too, fs.pipe-max-size being 1 MiB here): the reader says why
+    and what it got, and the lane carries messages in the smaller pipe; the default size is
+    granted and nothing is said."""
+    big = LaneReader(TOPIC, tmp_path, "/dcsms/big", pipe_size=1 << 27)
+    ok = LaneReader(TOPIC, tmp_path, "/dcsms/ok")
+    try:
+        if big.capacity >= 1 << 27:
+            pytest.skip("the kernel granted 128 MiB (CAP_SYS_RESOURCE): no refusal to show")
+        assert big.refused and 0 < big.capacity < 1 << 27
+        assert ok.refused == "" and ok.capacity == hostlane.PIPE_SIZE
+        w = LaneWriter(TOPIC, tmp_path)
+        w.refresh()
+        assert len(w.lanes) == 2 and w.write(b"x" * 100, 7)
+        assert _drain(big, 1) == _drain(ok, 1) == [(b"x" * 100, 7)]
+        w.close()
+    finally:
+        big.close()
+        ok.close()
