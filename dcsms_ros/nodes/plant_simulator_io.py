@@ -185,8 +185,8 @@ class PlantIO:
         if k % self.clock_every == 0:
             self.pub_clock.publish(ClockMsg(clock=to_stamp(ns)))
         for b, (pub, v) in enumerate(zip(self.pub_truth, truth, strict=False)):
-            if pub.wanted():
-                pub.publish(self._w_truth[b].encode(ns, v))
+            if pub.wanted():  # recorded in this process only: encoded in the part's batch
+                pub.publish_later(self._w_truth[b].encode, ns, v)
         return ns
 
     def ask_trip(self, ns: int) -> None:

@@ -41,7 +41,7 @@ from dcsms_ros.nodes.recorder_topics import qos_yaml
 from dcsms_ros.ros.callbackgroups import UnlockedGroup
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import hot_path
-from dcsms_ros.ros.intraprocess import DirectPublisher
+from dcsms_ros.ros.intraprocess import Deferred, DirectPublisher
 
 #: Period of the part's flush, s. Every executor round holds the GIL in Python while the node's
 #: hot thread may need it (:data:`~dcsms_ros.ros.context.HOST_POLL_S`), so the flush runs
@@ -86,7 +86,7 @@ class PartRecorder:
                 if isinstance(w, DirectPublisher) and w.topic_name in topics]
         self.writer = McapBagWriter(out, defer_flush=True)
         self._open = True
-        self._batch: list[tuple[str, int, bytes]] = []
+        self._batch: list[tuple[str, int, Any]] = []  # bytes, or Deferred until written
         try:
             for w in mine:
                 name = msgtype_name(w.pub.msg_type)
@@ -103,7 +103,7 @@ class PartRecorder:
         # part's count
         batch = self._batch
 
-        def cb(data: bytes, t_ns: int) -> None:
+        def cb(data: bytes | Deferred, t_ns: int) -> None:
             if self._open:
                 batch.append((topic, t_ns, data))
                 if len(batch) >= PART_BATCH:
@@ -114,6 +114,10 @@ class PartRecorder:
     def _write_batch(self) -> None:
         batch = self._batch
         if batch:
+            for i, (topic, t_ns, data) in enumerate(batch):
+                if data.__class__ is tuple:  # Deferred: encoded here, in one warm pass
+                    enc, ns, value = data
+                    batch[i] = (topic, t_ns, enc(ns, value))
             self.writer.write_all(batch)
             batch.clear()
 

@@ -127,6 +127,56 @@ def test_the_hot_thread_writes_whole_batches_in_publication_order_and_the_rest_a
     assert [m for t, m in rows if t == DURABLE] == [m for i, m in enumerate(msgs) if not i % 3]
 
 
+def test_work_handed_over_is_written_as_published_and_published_once_a_reader_is_there(
+        ctx: Any, tmp_path: Path) -> None:
+    """publish_later while the part alone takes the topic (no lane, no DDS reader): the part
+    encodes in its batch, the same bytes in publication order among the messages published
+    as bytes; once a DDS reader is matched each one is encoded and published at once."""
+    node = Writer(context=ctx)
+    reader = Node("part_reader", context=ctx)
+    got: list[Any] = []
+    enc = cdr.StampedWriter(cdr.TWIST_STAMPED, "stage1", 6)
+    values = [[float(6 * k + j) for j in range(6)] for k in range(2 * PART_BATCH)]
+    want = [enc.encode(500_000 * k, v) for k, v in enumerate(values)]
+    try:
+        part = attach(node, {RECORD_PART_ENV: str(tmp_path / "part"),
+                             RECORD_TOPICS_ENV: VOLATILE})
+        assert part is not None and isinstance(node.vol, DirectPublisher)
+        half = PART_BATCH
+        assert node.vol.lane is not None and not node.vol.lane.lanes  # one process per node
+        for k in range(half):  # every third as bytes: the order must hold across both
+            if k % 3:
+                node.vol.publish_later(enc.encode, 500_000 * k, values[k])
+            else:
+                node.vol.publish(want[k])
+            if k == 1:  # the work itself went to the part, not its bytes
+                assert part._batch[-1][2].__class__ is tuple
+        keep = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
+        sub = reader.create_subscription(TwistStamped, VOLATILE, got.append, keep, raw=True)
+        end = time.monotonic() + 10.0
+        while (node.vol.get_subscription_count() == 0 or sub.get_publisher_count() == 0) \
+                and time.monotonic() < end:
+            time.sleep(0.01)
+        time.sleep(2 * MATCH_REFRESH_NS * 1e-9)
+        for k in range(half, 2 * half):
+            node.vol.publish_later(enc.encode, 500_000 * k, values[k])
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(reader)
+        end = time.monotonic() + 10.0
+        while len(got) < half and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        ex.shutdown()
+        assert [bytes(m) for m in got] == want[half:]
+        reader.destroy_subscription(sub)
+        path = part.finish()
+    finally:
+        reader.destroy_node()
+        node.destroy_node()
+    with Reader(path) as r:
+        rows = [(c.topic, bytes(raw)) for c, _, raw in r.messages()]
+    assert [m for _, m in rows] == want
+
+
 def test_without_the_variables_nothing_is_recorded_and_a_bad_part_is_one_error(
         ctx: Any, tmp_path: Path) -> None:
     node = Writer(context=ctx)
