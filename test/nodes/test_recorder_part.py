@@ -54,6 +54,31 @@ def _msgs(n: int, k0: int = 0) -> list[bytes]:
                                                  np.arange(6.0 * n).reshape(n, 6))]
 
 
+def _matched_reader(node: Writer, reader: Node, got: list[Any]) -> Any:
+    """A best-effort DDS reader of VOLATILE (200 deep) on ``reader``, into ``got``, once it is
+    matched on both sides (a best-effort reader drops what comes from a writer it has not
+    matched yet) and the writer's count, cached for MATCH_REFRESH_NS, was asked since: the
+    contract is every message from at most that long after the match."""
+    keep = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
+    sub = reader.create_subscription(TwistStamped, VOLATILE, got.append, keep, raw=True)
+    end = time.monotonic() + 10.0
+    while (node.vol.get_subscription_count() == 0 or sub.get_publisher_count() == 0) \
+            and time.monotonic() < end:
+        time.sleep(0.01)
+    time.sleep(2 * MATCH_REFRESH_NS * 1e-9)
+    return sub
+
+
+def _spin(ctx: Any, reader: Node, got: list[Any], n: int) -> None:
+    """Spin ``reader`` until ``got`` holds ``n`` messages (10 s at most)."""
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(reader)
+    end = time.monotonic() + 10.0
+    while len(got) < n and time.monotonic() < end:
+        ex.spin_once(timeout_sec=0.05)
+    ex.shutdown()
+
+
 def test_every_published_message_is_in_the_part_and_dds_only_with_a_reader(
         ctx: Any, tmp_path: Path) -> None:
     node = Writer(context=ctx)
@@ -70,26 +95,11 @@ def test_every_published_message_is_in_the_part_and_dds_only_with_a_reader(
         for m in first:
             node.vol.publish(m)
             node.dur.publish(m)
-        keep = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
-        sub = reader.create_subscription(TwistStamped, VOLATILE, got.append, keep, raw=True)
-        # matched on both sides (a best-effort reader drops what comes from a writer it has not
-        # matched yet), and the writer's count, cached for MATCH_REFRESH_NS, asked since: the
-        # contract is every message from at most that long after the match (in a full run the
-        # reader matched within that time of the first batch, and all 5 went to no DDS reader)
-        end = time.monotonic() + 10.0
-        while (node.vol.get_subscription_count() == 0 or sub.get_publisher_count() == 0) \
-                and time.monotonic() < end:
-            time.sleep(0.01)
-        time.sleep(2 * MATCH_REFRESH_NS * 1e-9)
+        sub = _matched_reader(node, reader, got)
         second = _msgs(5, 5)
         for m in second:
             node.vol.publish(m)
-        ex = SingleThreadedExecutor(context=ctx)
-        ex.add_node(reader)
-        end = time.monotonic() + 10.0
-        while len(got) < 5 and time.monotonic() < end:
-            ex.spin_once(timeout_sec=0.05)
-        ex.shutdown()
+        _spin(ctx, reader, got, 5)
         # on DDS only what was published while the reader was matched
         assert [bytes(m) for m in got] == second
         reader.destroy_subscription(sub)
@@ -151,21 +161,10 @@ def test_work_handed_over_is_written_as_published_and_published_once_a_reader_is
                 node.vol.publish(want[k])
             if k == 1:  # the work itself went to the part, not its bytes
                 assert part._batch[-1][2].__class__ is tuple
-        keep = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
-        sub = reader.create_subscription(TwistStamped, VOLATILE, got.append, keep, raw=True)
-        end = time.monotonic() + 10.0
-        while (node.vol.get_subscription_count() == 0 or sub.get_publisher_count() == 0) \
-                and time.monotonic() < end:
-            time.sleep(0.01)
-        time.sleep(2 * MATCH_REFRESH_NS * 1e-9)
+        sub = _matched_reader(node, reader, got)
         for k in range(half, 2 * half):
             node.vol.publish_later(enc.encode, 500_000 * k, values[k])
-        ex = SingleThreadedExecutor(context=ctx)
-        ex.add_node(reader)
-        end = time.monotonic() + 10.0
-        while len(got) < half and time.monotonic() < end:
-            ex.spin_once(timeout_sec=0.05)
-        ex.shutdown()
+        _spin(ctx, reader, got, half)
         assert [bytes(m) for m in got] == want[half:]
         reader.destroy_subscription(sub)
         path = part.finish()
