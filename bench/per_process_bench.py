@@ -42,8 +42,8 @@ CPU_WHY = ("NOT met: a process that only relays each message, woken across cores
            "24-38 us, the node (its hot loop, lane input, publisher, part recorder) ~+20 us "
            "more (the answer rows below); of a controller's hot thread 64 % is libpython and "
            "15 % the kernel switching it back in (perf, cpu-clock); the plant publishes 5 "
-           "messages (its 3 true twists, recorded only, ~14 % of its CPU), drains 3 lanes and "
-           "steps; docs/performance.md)")
+           "messages (its 3 true twists recorded only, encoded in the part recorder's batch), "
+           "drains 3 lanes and steps; docs/performance.md)")
 #: CPU per sample (us) each node of the per-process graph may spend, recorder per message.
 CPU_TARGETS_US = {"plant_simulator": 100.0, "sensor_decoupling": 60.0, "fb_stage1": 40.0,
                   "fb_stage2": 40.0, "ff_stage1": 40.0, "recorder": 15.0}
