@@ -237,8 +237,8 @@ class PlantSimulatorNode(GraphNode, Hosted):
     def _on_force(self, cid: str, buf: bytes, rx_ns: int | None = None) -> None:
         """A force command (serialized); ``rx_ns``: its arrival (monotonic ns) when taken
         later (drained)."""
-        # Python floats to the simulator's rows (a numpy call costs several times its
-        # back-to-back price at 2 kHz: bench/relay_floor.py --answer)
+        # Python floats to the simulator's rows, no array a force (as a controller's sample:
+        # in a woken thread the parts cost ~4x their back-to-back price, relay_floor.py)
         stamp, w = read_stamped_floats(buf, WRENCH_STAMPED, self.dof)
         w = self.force_guard.clean_floats(w, 0.0)
         if cid == topics.EXCITATION_ID and self.io.exc_stage is None:

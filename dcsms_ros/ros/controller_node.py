@@ -173,8 +173,9 @@ class ControllerNode(GraphNode, Hosted):
 
     # -- the loop ----------------------------------------------------------------------------
     def _on_velocity(self, buf: bytes) -> None:
-        # on Python floats from message to message: a numpy call costs several times its
-        # back-to-back price once every 500 us (bench/relay_floor.py --answer)
+        # on Python floats from message to message: in a thread woken every 500 us a
+        # sample's parts cost ~4x their back-to-back price, numpy's calls among them
+        # (bench/relay_floor.py --answer; -10.6 % CPU a sample, docs/performance.md)
         ns, x = read_stamped_floats(buf, TWIST_STAMPED, self.dof)
         # implausible (non-finite, > 10 m/s): counted and logged here, NaN for the loop, which
         # answers it with zero force (lockstep goes on) and leaves its filters untouched
