@@ -69,6 +69,12 @@ def _matched_reader(node: Writer, reader: Node, got: list[Any]) -> Any:
     return sub
 
 
+def _rows(path: Path) -> list[tuple[str, bytes]]:
+    """(topic, bytes) of every message in the part at ``path``, in its order."""
+    with Reader(path) as r:
+        return [(c.topic, bytes(raw)) for c, _, raw in r.messages()]
+
+
 def _spin(ctx: Any, reader: Node, got: list[Any], n: int) -> None:
     """Spin ``reader`` until ``got`` holds ``n`` messages (10 s at most)."""
     ex = SingleThreadedExecutor(context=ctx)
@@ -107,8 +113,7 @@ def test_every_published_message_is_in_the_part_and_dds_only_with_a_reader(
     finally:
         reader.destroy_node()
         node.destroy_node()
-    with Reader(path) as r:
-        rows = [(c.topic, bytes(raw)) for c, _, raw in r.messages()]
+    rows = _rows(path)
     assert [m for t, m in rows if t == VOLATILE] == first + second
     assert [m for t, m in rows if t == DURABLE] == first
     info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
@@ -130,8 +135,7 @@ def test_the_hot_thread_writes_whole_batches_in_publication_order_and_the_rest_a
         path = part.finish()
     finally:
         node.destroy_node()
-    with Reader(path) as r:
-        rows = [(c.topic, bytes(raw)) for c, _, raw in r.messages()]
+    rows = _rows(path)
     assert sorted(m for _, m in rows) == sorted(msgs)
     assert [m for t, m in rows if t == VOLATILE] == [m for i, m in enumerate(msgs) if i % 3]
     assert [m for t, m in rows if t == DURABLE] == [m for i, m in enumerate(msgs) if not i % 3]
@@ -171,8 +175,7 @@ def test_work_handed_over_is_written_as_published_and_published_once_a_reader_is
     finally:
         reader.destroy_node()
         node.destroy_node()
-    with Reader(path) as r:
-        rows = [(c.topic, bytes(raw)) for c, _, raw in r.messages()]
+    rows = _rows(path)
     assert [m for _, m in rows] == want
 
 
