@@ -185,7 +185,8 @@ class PlantIO:
         if k % self.clock_every == 0:
             self.pub_clock.publish(ClockMsg(clock=to_stamp(ns)))
         for b, (pub, v) in enumerate(zip(self.pub_truth, truth, strict=False)):
-            if pub.wanted():  # recorded in this process only: encoded in the part's batch
+            # observed: recorded here (encoded in the part's batch), no call to ask
+            if pub.observed or pub.wanted():
                 pub.publish_later(self._w_truth[b].encode, ns, v)
         return ns
 
@@ -205,7 +206,7 @@ class PlantIO:
         if self._applied is not None:
             applied, ns = self._applied
             self._applied = None
-            if self.pub_applied.wanted():
+            if self.pub_applied.observed or self.pub_applied.wanted():
                 self.pub_applied.publish(self._w_applied.encode(ns, applied))
 
     def excitation_frame(self, frame: str) -> None:

@@ -16,10 +16,17 @@ from collections.abc import Callable
 #: that matched within it misses nothing of a transient-local topic (the held history), and of
 #: a volatile one at most that millisecond's messages, as if DDS had matched it 1 ms later.
 MATCH_REFRESH_NS = 1_000_000
+#: The same for one process per node, whose per-sample messages to this host's nodes go on
+#: lanes (:mod:`dcsms_ros.ros.hostlane`): there a DDS count only tells of a peer without a lane
+#: (another host, a tool) coming or going, and a lane's own hello or bye is acted on at once.
+#: Asked every millisecond it was an rcl call every other sample (2 kHz) in each writer and
+#: lane reader: 1.2 calls a sample in a controller, 1.7 in the plant, ~2-3 us each on a thread
+#: woken every 500 us (docs/performance.md, "Fewer calls a sample").
+LANE_MATCH_REFRESH_NS = 10_000_000
 
 
 class MatchCount:
-    """A DDS writer's matched-reader count, asked at most every :data:`MATCH_REFRESH_NS`.
+    """A DDS writer's matched-reader count, asked at most every ``refresh_ns``.
 
     Parameters
     ----------
@@ -27,20 +34,23 @@ class MatchCount:
         ``ask()`` -> int, the count (the publisher handle's ``get_subscription_count``).
     clock : callable
         ``clock()`` -> int ns (monotonic).
+    refresh_ns : int
+        How long a count is kept, ns.
     """
 
-    def __init__(self, ask: Callable[[], int], clock: Callable[[], int] = time.monotonic_ns
-                 ) -> None:
+    def __init__(self, ask: Callable[[], int], clock: Callable[[], int] = time.monotonic_ns,
+                 refresh_ns: int = MATCH_REFRESH_NS) -> None:
         self._ask, self._clock = ask, clock
+        self.refresh_ns = int(refresh_ns)
         self._n = 0
         self._due = -1
 
     def __call__(self) -> int:
-        """The count, at most :data:`MATCH_REFRESH_NS` old."""
+        """The count, at most :attr:`refresh_ns` old."""
         now = self._clock()
         if now >= self._due:
             self._n = int(self._ask())
-            self._due = now + MATCH_REFRESH_NS
+            self._due = now + self.refresh_ns
         return self._n
 
 
@@ -73,4 +83,4 @@ class HeldHistory:
         return out
 
 
-__all__ = ["MATCH_REFRESH_NS", "HeldHistory", "MatchCount"]
+__all__ = ["LANE_MATCH_REFRESH_NS", "MATCH_REFRESH_NS", "HeldHistory", "MatchCount"]

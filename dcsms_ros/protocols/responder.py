@@ -104,6 +104,8 @@ class Answerer(StampResponder[T]):
     def due(self, stamp_ns: int) -> bool:
         """True if the input stamped ``stamp_ns`` is to be computed and :meth:`reply`-ed; a
         repeat is published from the cache here, an old or held (gated) one is dropped."""
+        if stamp_ns > self.last_ns and self.gate.open:
+            return True  # the usual sample (NEW, gate open), decided without judge's call
         verdict = self.judge(stamp_ns)
         if verdict is Verdict.NEW:
             return self.gate.open or self._first()
@@ -113,7 +115,8 @@ class Answerer(StampResponder[T]):
 
     def reply(self, stamp_ns: int, answer: T) -> None:
         """Store and publish ``answer`` to the input stamped ``stamp_ns``."""
-        self.publish(self.store(stamp_ns, answer))
+        self.last_ns, self.cache = stamp_ns, answer  # store(), a call less a sample
+        self.publish(answer)
 
     def _first(self) -> bool:
         ok = self.gate.ready(self._matched, self._clock())

@@ -118,6 +118,7 @@ class ControllerNode(GraphNode, Hosted):
         if enabled and not self.lockstep:
             self.loop.enable(True)
         self.dof, self.rate = cfg.plant.dof, cfg.plant.rate_hz
+        self._gap_ns = 1.25e9 / self.rate  # below skipped()'s first whole sample
         self.guard = InputGuard(self, f"{cid} velocity", MAX_VELOCITY_MPS)
         self.writer = StampedWriter(WRENCH_STAMPED, ControllerId.parse(cid).frame, self.dof)
         self.watchdog = Watchdog(cfg.control.input_timeout_s)
@@ -158,7 +159,7 @@ class ControllerNode(GraphNode, Hosted):
         if not self.lockstep and self.hot.on:
             # on the hot thread: its wait times out at the deadline, so a silent input is
             # caught on time without waking the executor at 400 Hz (~6 % of a core)
-            self.hot.set_tick(self._watchdog_tick)
+            self.hot.set_tick(self._watchdog_tick, lazy=True)
         elif not self.lockstep:
             steady_timer(self, max(self.watchdog.timeout_s / 4.0, 1e-3), self._watchdog_locked)
         self.housekeeping(1.0, self._report)
@@ -183,7 +184,8 @@ class ControllerNode(GraphNode, Hosted):
         if not self.answers.due(ns):
             return
         last = self.answers.last_ns
-        if not self.lockstep and last >= 0 and self._linked:
+        # skipped() is 0 for a gap under 1.5 sample periods: not called for the usual one
+        if ns - last > self._gap_ns and not self.lockstep and last >= 0 and self._linked:
             # real time drops samples under load (keep-last 1): the fade follows the stamps,
             # so a switch or a trip fades in control.fade_time_s of plant time, not messages;
             # a fade-in skips at most an input timeout: a longer gap (a stall, or the old first
@@ -238,15 +240,18 @@ class ControllerNode(GraphNode, Hosted):
         return (writer_matched(self, self.pub)
                 or time.monotonic() - self._plant_seen > MATCH_TIMEOUT_S)
 
-    def _watchdog_tick(self) -> float | None:
-        """Hot-loop tick: the watchdog when due; seconds until it is due again. Run at every
-        wake-up, so the lock and the check are skipped while it is not due (it has nothing
-        to say then)."""
+    def _watchdog_tick(self) -> float:
+        """Hot-loop tick (lazy: an input only moves the watchdog's deadline later): the
+        watchdog when due; seconds until it is due again (before the first input, a timeout:
+        its deadline is at least that far)."""
         left = self.watchdog.wait_s(time.monotonic())
-        if left is None or left > 0.0:
+        if left is None:
+            return self.watchdog.timeout_s
+        if left > 0.0:
             return left
         self._watchdog_locked()
-        return self.watchdog.wait_s(time.monotonic())
+        nxt = self.watchdog.wait_s(time.monotonic())
+        return self.watchdog.timeout_s if nxt is None else nxt
 
     def _watchdog_locked(self) -> None:
         with self._lock:
@@ -283,6 +288,7 @@ class ControllerNode(GraphNode, Hosted):
             self.changed_at_ns = self.answers.last_ns  # newest sample before the change
             self.loop = retuned(self.loop, cfg, self.cid,
                                 keep_fade="control.fade_time_s" not in changed)
+        self.hot.wake()  # a shorter input timeout: the lazy watchdog tick is due sooner
 
     # -- reporting ---------------------------------------------------------------------------
     def _report(self) -> None:

@@ -41,11 +41,10 @@ class InputGuard:
 
     def plausible(self, x: NDArray[np.float64] | Sequence[float]) -> bool:
         """True if every element of ``x`` (an array, or Python floats) is finite and within the
-        limit (not counted). The vectors are a few floats per sample: a Python loop takes
-        ~0.2 us where ``np.errstate`` and three numpy calls took ~2.3 us."""
-        lim = self.limit
+        limit (not counted). The vectors are a few floats per sample: C builtins over Python
+        floats, no Python frame; ``np.errstate`` and three numpy calls took ~2.3 us."""
         xs = x.tolist() if isinstance(x, np.ndarray) else x
-        return all(abs(v) <= lim for v in xs)  # NaN compares False
+        return all(map(self.limit.__ge__, map(abs, xs)))  # NaN compares False
 
     def clean_floats(self, x: tuple[float, ...], fill: float) -> tuple[float, ...]:
         """``x`` (a sample's Python floats) itself if plausible; else ``fill`` for every

@@ -31,6 +31,7 @@ import gc
 import os
 import sys
 import threading
+import time
 import traceback
 from collections.abc import Callable
 from contextlib import ExitStack
@@ -87,6 +88,7 @@ class Served(LanePath, Protocol):
     """What a :class:`HotLoop` serves (a :class:`~.hotpath.HotPath`)."""
 
     node: Node
+    lazy_tick: bool
 
     def resolve(self) -> list[Subscription]: ...
 
@@ -101,7 +103,7 @@ class HotLoop:
     After each wake-up it empties every path's subscriptions (composed, in passes with the
     bus until a pass takes nothing: a handler's publication is another node's input), then the
     ticks; it waits on a wait set of all the subscriptions and a guard condition for at most
-    the shortest time a tick asked for (on a :class:`threading.Event` when it serves no DDS
+    the shortest time a tick asked for (on its wake-up pipe alone when it serves no DDS
     subscription: composed, with every topic in-process).
     """
 
@@ -112,9 +114,6 @@ class HotLoop:
         self._stop = False
         self._thread: threading.Thread | None = None
         self._guard: GuardCondition | None = None
-        # a loop with no DDS subscription to serve (composed, every topic in-process) waits on
-        # this instead of an rcl wait set: ~2 us of CPU against ~33 us for rcl_wait(0)
-        self._event = threading.Event()
         self.error: BaseException | None = None
         #: Called (on the loop's thread) once it failed: the host wakes its spin loop.
         self.on_error: Callable[[], object] | None = None
@@ -130,8 +129,11 @@ class HotLoop:
         #: The CPU wake-up latency held while the loop runs under SCHED_FIFO (:mod:`.cpulatency`).
         self.cpu_latency: CpuLatencyRequest | None = None
         self._prioritized = threading.Event()
-        #: the wait on the paths' lanes (one process per node; made at start)
-        self._lanes = LaneWait((), 0)
+        #: set by :meth:`wake`: the next pass runs every tick, lazy ones too
+        self._rearm = False
+        #: the wait on the paths' lanes (one process per node) and on the wake-up pipe; made
+        #: at start
+        self._lanes: LaneWait | None = None
 
     @property
     def native_id(self) -> int | None:
@@ -164,17 +166,18 @@ class HotLoop:
             self._prioritized.wait(1.0)
 
     def wake(self) -> None:
-        """Run the ticks now."""
-        self._event.set()
+        """Run the ticks now (lazy ones too)."""
+        self._rearm = True
         if self._guard is not None and self._subs:
             self._guard.trigger()
-        self._lanes.wake()
+        if self._lanes is not None:
+            self._lanes.wake()
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Ask the thread to end and wait for it (idempotent)."""
         self._stop = True
-        self._event.set()
-        self._lanes.wake()
+        if self._lanes is not None:
+            self._lanes.wake()
         if self._thread is not None:
             if self._guard is not None:
                 with contextlib.suppress(Exception):
@@ -188,12 +191,13 @@ class HotLoop:
         if self.cpu_latency is not None:
             self.cpu_latency.close()
             self.cpu_latency = None
-        self._lanes.close()
+        if self._lanes is not None:
+            self._lanes.close()
 
     def _on_shutdown(self) -> None:
         self._stop = True
-        self._event.set()
-        self._lanes.wake()
+        if self._lanes is not None:
+            self._lanes.wake()
         if self._guard is not None:
             with contextlib.suppress(Exception):  # the context may be gone already
                 self._guard.trigger()
@@ -257,6 +261,13 @@ class HotLoop:
         ws = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self.context.handle)
         first_node = self.paths[0].node
         paths, serving = self.paths, self._serving
+        lazy = [p.lazy_tick for p in paths]
+        # when each lazy tick is due next (monotonic s); the others' stay -1: every pass
+        dues = [-1.0] * len(paths)
+        monotonic = time.monotonic
+        waits = self._lanes  # made by start()
+        assert waits is not None
+        lanes = waits if waits else None  # the lanes, if any
         with ExitStack() as stack:
             for s in subs:
                 stack.enter_context(s.handle)
@@ -266,19 +277,18 @@ class HotLoop:
             timeout = IDLE_S
             while not self._stop:
                 if (bus is None or not bus.pending) and not handles:
-                    # cleared after the wait: a wake() from now on is seen by the next one,
-                    # and what an earlier one announced is delivered by the pass below
-                    self._event.wait(timeout)
-                    self._event.clear()
+                    # a wake() from now on is seen by the next wait, and what an earlier one
+                    # announced is delivered by the pass below
+                    waits.sleep(timeout)
                     self.wakeups += 1
                     if self._stop:
                         break
-                elif self._lanes and self._lanes.wait(timeout):
+                elif lanes is not None and lanes.wait(timeout):
                     self.wakeups += 1
                     if self._stop:
                         break
                 elif bus is None or not bus.pending:  # else go on delivering at once
-                    if self._lanes:  # no lane writer yet: look for one's hello again soon
+                    if lanes is not None:  # no lane writer yet: look for a hello again soon
                         timeout = min(timeout, PROBE_S)
                     ws.clear_entities()
                     for h in handles:
@@ -304,10 +314,20 @@ class HotLoop:
                     if bus.pending or not n:
                         break  # pending: a bounded round (ticks and the stop flag), then on
                 timeout = IDLE_S
-                for p in paths:
+                if self._rearm:
+                    self._rearm = False
+                    dues = [-1.0] * len(paths)
+                now = monotonic()
+                for i, p in enumerate(paths):
+                    due = dues[i]
+                    if now < due:  # a lazy tick not due: its deadline only moved later
+                        timeout = min(timeout, due - now)
+                        continue
                     nxt = p.tick()
                     if nxt is not None:
                         timeout = min(timeout, max(nxt, 0.0))
+                    if lazy[i]:
+                        dues[i] = now + (IDLE_S if nxt is None else max(nxt, 0.0))
 
 
 class DrivenContext(Context):

@@ -85,6 +85,8 @@ class HotPath:
         self.readers: list[Subscription] = []
         self.writers: list[HotPublisher] = []
         self._tick: Callable[[], float | None] | None = None
+        #: the tick's deadline only moves later (:meth:`set_tick`)
+        self.lazy_tick = False
         self.loop: HotLoop | None = None
         self._own = False
         self.messages = 0
@@ -296,10 +298,17 @@ class HotPath:
                 n += 1
         return n
 
-    def set_tick(self, tick: Callable[[], float | None]) -> None:
+    def set_tick(self, tick: Callable[[], float | None], lazy: bool = False) -> None:
         """Call ``tick()`` (under the lock) after every wake-up; it returns the longest wait
-        (s) until it must run again, or None for :data:`IDLE_S`. Only with the path on."""
+        (s) until it must run again, or None for :data:`IDLE_S`. Only with the path on.
+
+        ``lazy``: the tick's deadline never comes sooner than it said (a handler or another
+        thread only moves it later, or calls :meth:`wake`), so the loop calls it only once
+        the wait it returned has passed, or after a :meth:`wake`: a controller's watchdog,
+        which each input moves later. Asked at every wake-up it was the lock and three calls
+        a sample (docs/performance.md, "Fewer calls a sample")."""
         self._tick = tick
+        self.lazy_tick = lazy
 
     def start(self) -> None:
         """Serve the subscriptions: by this process's driver loop if the node's context is

@@ -37,7 +37,7 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy
 
 from dcsms_ros.protocols.localbus import BusWriter, LocalBus
-from dcsms_ros.protocols.matched import MATCH_REFRESH_NS, HeldHistory, MatchCount
+from dcsms_ros.protocols.matched import LANE_MATCH_REFRESH_NS, HeldHistory, MatchCount
 from dcsms_ros.ros.hostlane import LaneWriter
 
 #: A message an observer encodes itself: ``(encode, ns, value)``, its bytes
@@ -49,6 +49,9 @@ class _Wrapped:
     """What a per-sample publisher shares with rclpy's: name, handle, matches, acks."""
 
     pub: Publisher
+    #: Whether an observer takes every message (:meth:`DirectPublisher.observe`), so the
+    #: messages are wanted whoever else reads them.
+    observed = False
 
     @property
     def topic_name(self) -> str:
@@ -138,8 +141,9 @@ class DirectPublisher(_Wrapped):
 
     With a ``lane`` writer (:mod:`.hostlane`), each message goes into the lanes of this host's
     readers first, and on DDS only while DDS matched more readers than there are lanes
-    (:meth:`~dcsms_ros.protocols.lanes.LaneTable.dds`; the count at most 1 ms old, as a
-    composed publisher's).
+    (:meth:`~dcsms_ros.protocols.lanes.LaneTable.dds`; the count at most
+    :data:`~dcsms_ros.protocols.matched.LANE_MATCH_REFRESH_NS` old, a lane's leaving acted on
+    at once).
 
     Parameters
     ----------
@@ -159,7 +163,7 @@ class DirectPublisher(_Wrapped):
         self.on_dds_after_leave = 0
         self._raw: Callable[[bytes], None] = pub.handle.publish_raw
         self._ask: Callable[[], int] = pub.handle.get_subscription_count
-        self._matched = MatchCount(self._ask)
+        self._matched = MatchCount(self._ask, refresh_ns=LANE_MATCH_REFRESH_NS)
         self._durable = pub.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
         # with lanes: whether every message goes on DDS too, and until when that holds
         self._on_dds = False
@@ -173,8 +177,8 @@ class DirectPublisher(_Wrapped):
         """Publish ``data`` (serialized) on DDS, then hand it to the observer, if any. With
         an observer, a volatile writer skips DDS while no reader is matched (the plant's truth
         topics, recorded in the process: no reader of them elsewhere; the count is at most
-        1 ms old, :class:`~dcsms_ros.protocols.matched.MatchCount`); a transient-local one
-        always publishes, for the history a late reader gets."""
+        :data:`~dcsms_ros.protocols.matched.LANE_MATCH_REFRESH_NS` old); a transient-local
+        one always publishes, for the history a late reader gets."""
         obs = self._observer
         lane = self.lane
         if lane is not None:
@@ -217,11 +221,11 @@ class DirectPublisher(_Wrapped):
 
     def _route(self, lane: LaneWriter, now_ns: int) -> None:
         """Judge whether the messages go on DDS too (:meth:`.LaneWriter.dds`), for the next
-        :data:`~dcsms_ros.protocols.matched.MATCH_REFRESH_NS` or until a lane closes: the DDS
+        :data:`~dcsms_ros.protocols.matched.LANE_MATCH_REFRESH_NS` or until a lane closes: the DDS
         count is asked that often anyway, and judged once per message the decision cost a
         process per node ~4 Python calls a message (5 messages a sample in the plant)."""
         self._on_dds = lane.dds(int(self._ask()), now_ns, 0)
-        self._route_due = now_ns + MATCH_REFRESH_NS
+        self._route_due = now_ns + LANE_MATCH_REFRESH_NS
         self._route_left = lane.left
 
     def observe(self, observer: Callable[[bytes | Deferred, int], None]) -> None:

@@ -20,7 +20,7 @@ from rclpy.node import Node
 from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.lanes import CopyLedger
-from dcsms_ros.protocols.matched import MatchCount
+from dcsms_ros.protocols.matched import LANE_MATCH_REFRESH_NS, MatchCount
 from dcsms_ros.ros import hostlane
 from dcsms_ros.ros.connectivity import UNKNOWN_NODE
 from dcsms_ros.ros.hostlane import LaneReader, LaneWriter
@@ -36,11 +36,11 @@ HELLO_WAIT_S = 0.3
 PROBE_S = 0.01
 
 #: How long (s) a lane input's state (:meth:`LaneInput.state`) is kept while no writer says
-#: hello or bye: the DDS matched-writer count it compares with is up to 1 ms old anyway
-#: (:class:`~dcsms_ros.protocols.matched.MatchCount`). Judging it at every wake-up, twice, cost
-#: a controller 3-5 % of its CPU per sample (same-run A/B: docs/performance.md, "A lane
-#: input's state once a millisecond").
-STATE_S = 1e-3
+#: hello or bye: the DDS matched-writer count it compares with is that old anyway
+#: (:data:`~dcsms_ros.protocols.matched.LANE_MATCH_REFRESH_NS`). Judging it at every wake-up,
+#: twice, cost a controller 3-5 % of its CPU per sample (same-run A/B: docs/performance.md, "A
+#: lane input's state once a millisecond").
+STATE_S = LANE_MATCH_REFRESH_NS * 1e-9
 
 #: :meth:`LaneInput.state`: every DDS writer serves the lane.
 LANES = "lanes"
@@ -57,7 +57,7 @@ class LaneInput:
     ----------
     sub : Subscription
         The DDS reader of the same topic (its matched-writer count is asked at most every
-        millisecond).
+        :data:`STATE_S`).
     reader : LaneReader
         Its lane.
     """
@@ -66,7 +66,7 @@ class LaneInput:
         self.sub = sub
         self.reader = reader
         self.fd = self.reader.fd
-        self._dds = MatchCount(sub.handle.get_publisher_count)
+        self._dds = MatchCount(sub.handle.get_publisher_count, refresh_ns=LANE_MATCH_REFRESH_NS)
         self._from_lane, self._from_dds = CopyLedger(), CopyLedger()
         self._pending: list[tuple[bytes, int]] = []
         self._matched_at: float | None = None
@@ -107,7 +107,10 @@ class LaneInput:
             self._probe_at = now + PROBE_S
         else:  # no lane writer: a new one's hello is looked for every PROBE_S, not each time
             got = []
-        state = self.state(now)
+        if now < self._state_until and self.reader.source.version == self._state_version:
+            state = self._state  # state()'s kept answer, without its call at every wake-up
+        else:
+            state = self.state(now)
         if state == MIXED:
             got = self._mixed(got)
         elif state == DDS:

@@ -50,11 +50,10 @@ class LaneWait:
     def __init__(self, paths: Sequence[LanePath], serving: int) -> None:
         self.paths = [p for p in paths if p.lane_fds()]
         self._all_served = len(self.paths) >= serving
-        self._wake_r = self._wake_w = -1
-        self._fds: list[int] = []
-        if self.paths:
-            self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
-            self._fds = [self._wake_r, *(fd for p in self.paths for fd in p.lane_fds())]
+        # the wake-up pipe, also for a loop without lanes that has no DDS reader to wait on
+        # (:meth:`sleep`)
+        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        self._fds = [self._wake_r, *(fd for p in self.paths for fd in p.lane_fds())]
         self._mode, self._mode_until = DDS, -1.0
 
     def __bool__(self) -> bool:
@@ -65,8 +64,9 @@ class LaneWait:
         polling DDS (:data:`~.laneinput.MIXED`) or on DDS (:data:`~.laneinput.DDS`: no lane
         writer serves them yet, or a subscription without a lane is served too)."""
         now = time.monotonic()
-        if now < self._mode_until:
-            return self._mode
+        return self._mode if now < self._mode_until else self._judge(now)
+
+    def _judge(self, now: float) -> str:
         states = {p.lane_state(now) for p in self.paths}
         if states == {DDS} or not self._all_served:
             mode = DDS
@@ -78,7 +78,8 @@ class LaneWait:
     def wait(self, timeout: float) -> bool:
         """Wait on the lanes (and the wake-up pipe) for at most ``timeout`` s, if a lane writer
         serves them; False (no wait) when none does: the loop waits on DDS then."""
-        mode = self.mode()
+        now = time.monotonic()  # mode() without its call: this runs at every wake-up
+        mode = self._mode if now < self._mode_until else self._judge(now)
         if mode == DDS:
             return False
         if mode != LANES:
@@ -88,6 +89,16 @@ class LaneWait:
             with contextlib.suppress(OSError):
                 os.read(self._wake_r, 4096)
         return True
+
+    def sleep(self, timeout: float) -> None:
+        """Wait on the wake-up pipe alone for at most ``timeout`` s (a loop with nothing else
+        to wait on: the plant, whose inputs its tick drains; composed, every topic in
+        process). One ``select``: ``threading.Event.wait`` with a timeout ran seven Python
+        frames and made a lock at every wake-up."""
+        ready, _, _ = select.select(self._fds[:1], (), (), max(timeout, 0.0))
+        if ready:
+            with contextlib.suppress(OSError):
+                os.read(self._wake_r, 4096)
 
     def wake(self) -> None:
         """End a wait now (or the next one, if none is going on)."""

@@ -179,7 +179,7 @@ def test_a_lane_inputs_state_follows_a_hello_at_once_and_the_dds_count_within_st
     pubs.append(writers[1].create_publisher(Header, "/lane_state", qos.stream_pub(True)))
     assert spin_until(ex, lambda: sub.get_publisher_count() == 2, 20.0)
     assert lane_in.state(t + 0.5 * STATE_S) == LANES  # kept
-    time.sleep(2 * STATE_S)  # the DDS count itself is up to 1 ms old (MatchCount's real clock)
+    time.sleep(2 * STATE_S)  # the DDS count itself is up to STATE_S old (a real clock)
     assert lane_in.state(t + 1.5 * STATE_S) == MIXED  # judged again: a writer without a lane
     lane.close()  # says bye
     lane_in.poll()

@@ -56,7 +56,33 @@ def test_a_served_path_without_lanes_keeps_the_loop_on_dds(lane):
     w = LaneWait([path, _Path(None)], serving=2)
     assert w.paths == [path] and w.mode() == DDS and not w.wait(1.0)
     w.close()
-    assert not LaneWait([_Path(None)], serving=1)  # nothing to wait on
+    none = LaneWait([_Path(None)], serving=1)
+    assert not none  # nothing to wait on
+    none.close()
+
+
+def test_a_loop_without_lanes_sleeps_on_the_wake_up_pipe_until_its_timeout_or_a_wake() -> None:
+    """A loop with no lanes and no DDS reader to wait on (the plant; composed, every topic in
+    process) sleeps on the wake-up pipe: to its timeout, or a wake() from another thread
+    ends it at once, and a wake() before the sleep ends the next one (then none is left)."""
+    w = LaneWait([_Path(None)], serving=0)
+    try:
+        t0 = time.monotonic()
+        w.sleep(0.05)
+        assert time.monotonic() - t0 >= 0.05 - 1e-3
+        threading.Timer(0.02, w.wake).start()
+        t0 = time.monotonic()
+        w.sleep(5.0)
+        assert time.monotonic() - t0 < 2.0
+        w.wake()
+        t0 = time.monotonic()
+        w.sleep(5.0)
+        assert time.monotonic() - t0 < 0.5  # the earlier wake-up
+        t0 = time.monotonic()
+        w.sleep(0.05)
+        assert time.monotonic() - t0 >= 0.05 - 1e-3  # nothing left over
+    finally:
+        w.close()
 
 
 def test_a_lanes_wait_ends_at_a_message_a_wake_or_its_timeout_a_mixed_one_polls_dds(

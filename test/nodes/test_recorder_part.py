@@ -25,7 +25,7 @@ from dcsms_ros.analysis.gaps import PUBLISHED_KEY
 from dcsms_ros.errors import DcsmsError
 from dcsms_ros.graph import RECORD_PART_ENV, RECORD_TOPICS_ENV
 from dcsms_ros.nodes.recorder_part import PART_BATCH, attach
-from dcsms_ros.protocols.matched import MATCH_REFRESH_NS
+from dcsms_ros.protocols.matched import LANE_MATCH_REFRESH_NS
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.callbackgroups import UnlockedGroup
 from dcsms_ros.ros.graphnode import GraphNode
@@ -57,7 +57,7 @@ def _msgs(n: int, k0: int = 0) -> list[bytes]:
 def _matched_reader(node: Writer, reader: Node, got: list[Any]) -> Any:
     """A best-effort DDS reader of VOLATILE (200 deep) on ``reader``, into ``got``, once it is
     matched on both sides (a best-effort reader drops what comes from a writer it has not
-    matched yet) and the writer's count, cached for MATCH_REFRESH_NS, was asked since: the
+    matched yet) and the writer's count, cached for LANE_MATCH_REFRESH_NS, was asked since: the
     contract is every message from at most that long after the match."""
     keep = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
     sub = reader.create_subscription(TwistStamped, VOLATILE, got.append, keep, raw=True)
@@ -65,7 +65,7 @@ def _matched_reader(node: Writer, reader: Node, got: list[Any]) -> Any:
     while (node.vol.get_subscription_count() == 0 or sub.get_publisher_count() == 0) \
             and time.monotonic() < end:
         time.sleep(0.01)
-    time.sleep(2 * MATCH_REFRESH_NS * 1e-9)
+    time.sleep(2 * LANE_MATCH_REFRESH_NS * 1e-9)
     return sub
 
 

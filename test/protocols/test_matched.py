@@ -5,12 +5,19 @@ from __future__ import annotations
 
 import pytest
 
-from dcsms_ros.protocols.matched import MATCH_REFRESH_NS, HeldHistory, MatchCount
+from dcsms_ros.protocols.matched import (
+    LANE_MATCH_REFRESH_NS,
+    MATCH_REFRESH_NS,
+    HeldHistory,
+    MatchCount,
+)
 
 
-def test_match_count_asks_again_only_after_the_refresh_interval() -> None:
-    """The count is asked at the first call, kept for MATCH_REFRESH_NS, and asked again at the
-    first call after it: a reader matched at t is seen from t + 1 ms at the latest."""
+@pytest.mark.parametrize("refresh", [None, LANE_MATCH_REFRESH_NS])
+def test_match_count_asks_again_only_after_the_refresh_interval(refresh: int | None) -> None:
+    """The count is asked at the first call, kept for the refresh interval (MATCH_REFRESH_NS
+    unless given), and asked again at the first call after it: a reader matched at t is seen
+    from t + the interval at the latest."""
     now = [5_000]
     readers = [2]
     asked = []
@@ -19,15 +26,17 @@ def test_match_count_asks_again_only_after_the_refresh_interval() -> None:
         asked.append(now[0])
         return readers[0]
 
-    count = MatchCount(ask, clock=lambda: now[0])
+    count = (MatchCount(ask, clock=lambda: now[0]) if refresh is None else
+             MatchCount(ask, clock=lambda: now[0], refresh_ns=refresh))
+    every = MATCH_REFRESH_NS if refresh is None else refresh
     assert count() == 2 and asked == [5_000]
     readers[0] = 3  # a remote reader matches
-    now[0] += MATCH_REFRESH_NS - 1
+    now[0] += every - 1
     assert count() == 2 and len(asked) == 1
     now[0] += 1
-    assert count() == 3 and asked == [5_000, 5_000 + MATCH_REFRESH_NS]
+    assert count() == 3 and asked == [5_000, 5_000 + every]
     readers[0] = 2  # ... and leaves
-    now[0] += 2 * MATCH_REFRESH_NS
+    now[0] += 2 * every
     assert count() == 2 and len(asked) == 3
 
 
