@@ -17,7 +17,7 @@ graph's namespace). Two schedules (parameter ``schedule``):
   clock at ``plant.rate_hz`` with the newest force of each controller
   (:class:`~dcsms_ros.protocols.pacer.HeldInputs`: zero once ``control.input_timeout_s`` has
   passed since the publication of the sample the force answers, not since its arrival, so a
-  late answer never closes the loop with more delay than that; see :meth:`PlantIO.sample_time`).
+  late answer never closes the loop with more delay than that; see :meth:`PlantIO.arrived`).
 
 Startup handshake (:mod:`.plant_simulator_io`): sample 0 is published only once the graph is
 connected, or after ``handshake_timeout_s``.
@@ -106,9 +106,8 @@ class PlantSimulatorNode(GraphNode, Hosted):
         for cid in self.controllers:
             topic = topics.LOCAL.force(cid)
             if self._drained:
-                self._force_subs.append((self.hot.detached(WrenchStamped, topic, sub_qos,
-                                                           raw=True),
-                                         partial(self._on_drained, cid)))
+                sub = self.hot.detached(WrenchStamped, topic, sub_qos, raw=True)
+                self._force_subs.append((self.hot.drainer(sub), partial(self._on_force, cid)))
             else:
                 self.hot.subscribe(WrenchStamped, topic, partial(self._on_force, cid),
                                    sub_qos, raw=True)
@@ -176,8 +175,8 @@ class PlantSimulatorNode(GraphNode, Hosted):
             return None
         if self.lockstep:
             return self._lockstep(time.monotonic())
-        for sub, on_drained in self._force_subs:
-            self.hot.drain_timed(sub, on_drained)
+        for drain, on_force in self._force_subs:
+            drain(on_force)
         self._realtime(time.monotonic())
         return self.pacer.wait_s(time.monotonic(), self.sim.k)
 
@@ -234,20 +233,21 @@ class PlantSimulatorNode(GraphNode, Hosted):
             self.finish()
             self.io.report()  # says finished=True: `dcsms up` tells a finished run from a crash
 
-    def _on_force(self, cid: str, buf: bytes, rx_ns: int | None = None) -> None:
-        """A force command (serialized); ``rx_ns``: its arrival (monotonic ns) when taken
-        later (drained)."""
+    def _on_force(self, cid: str, buf: bytes, wall_ns: int | None = None) -> None:
+        """A force command (serialized); ``wall_ns``: its arrival (system clock, ns: its DDS
+        reception, or its publication on a lane) when taken later (drained, real time)."""
         # Python floats to the simulator's rows, no array a force (as a controller's sample:
         # in a woken thread the parts cost ~4x their back-to-back price, relay_floor.py)
         stamp, w = read_stamped_floats(buf, WRENCH_STAMPED, self.dof)
         w = self.force_guard.clean_floats(w, 0.0)
         if cid == topics.EXCITATION_ID and self.io.exc_stage is None:
             self.io.excitation_frame(read_frame(buf, WRENCH_STAMPED))
-        now_ns = self.io.latency(cid, stamp, rx_ns)
+        valid_ns = self.io.arrived(cid, stamp, wall_ns)
         if not self.lockstep:
-            self.held.put(cid, w, self.io.sample_time(stamp, now_ns) * 1e-9)
-            if self.heard is not None:
-                self.heard.took(cid)
+            self.held.put(cid, w, valid_ns * 1e-9)
+            heard = self.heard
+            if heard is not None and heard.pending:
+                heard.took(cid)
             return
         if cid in self.barrier.absent:
             self.get_logger().info(f"{cid} is back")
@@ -256,10 +256,6 @@ class PlantSimulatorNode(GraphNode, Hosted):
             self._pump()
         else:
             self._ask()
-
-    def _on_drained(self, cid: str, buf: bytes, t_ns: int) -> None:
-        """A force taken from the queue at a sample (real time); ``t_ns``: its arrival."""
-        self._on_force(cid, buf, self.io.arrival(t_ns))
 
     def _on_checked(self, buf: bytes) -> None:
         """mode_switch judged the trip checkpoint ending at ``stamp``."""

@@ -181,7 +181,8 @@ class PlantIO:
         raw = self.sim.measure()
         self._raw_msg = self._w_raw.encode(ns, raw)
         self.pub_raw.publish(self._raw_msg)
-        self.flush_applied()
+        if self._applied is not None:  # lockstep (real time flushed them in advance())
+            self.flush_applied()
         if k % self.clock_every == 0:
             self.pub_clock.publish(ClockMsg(clock=to_stamp(ns)))
         for b, (pub, v) in enumerate(zip(self.pub_truth, truth, strict=False)):
@@ -237,40 +238,34 @@ class PlantIO:
                                         f"{self._nonfinite_seen})")
 
     # -- events ------------------------------------------------------------------------------
-    def arrival(self, wall_ns: int) -> int:
-        """Monotonic ns of a drained message's arrival, ``wall_ns`` (system clock, ns: its DDS
-        reception, or its in-process publication)."""
-        return wall_ns + self._wall_to_mono
-
-    def latency(self, cid: str, stamp: int, rx_ns: int | None) -> int:
-        """The arrival time (monotonic ns) of a force; records its control latency (sample
-        publication -> force arrival) in :attr:`latency_hist`, and per force for benchmarks."""
-        now_ns = time.monotonic_ns() if rx_ns is None else rx_ns
-        k = round(stamp * self.sim.cfg.plant.rate_hz / 1e9)
-        if 0 <= self.sim.k - k < RING:  # older answers: their publication time is gone
-            self.latency_hist.add((now_ns - self._ring[k % RING]) * 1e-9)
-        if self._timing and 0 <= k < len(self._t_pub):
-            self._lat[cid].append(now_ns - self._t_pub[k])
-        return now_ns
-
-    def published_s(self, k: int) -> float:
-        """Monotonic s of sample ``k``'s publication (the unit and value
-        :meth:`sample_time` gives its answers, in s); -inf before sample 0."""
-        return self._ring[k % RING] * 1e-9 if k >= 0 else -math.inf
-
-    def sample_time(self, stamp: int, now_ns: int) -> int:
-        """Monotonic ns the force stamped ``stamp`` counts from (real time): the publication of
-        the sample it answers, so its age is the delay it adds to the loop. Table1's stage-2
+    def arrived(self, cid: str, stamp: int, wall_ns: int | None = None) -> int:
+        """A force stamped ``stamp`` arrived at ``wall_ns`` (system clock, ns: its DDS
+        reception or its publication on a lane; None: now). Records its control latency
+        (sample publication -> force arrival) in :attr:`latency_hist`, and per force for
+        benchmarks. Returns the monotonic ns the force counts from (real time): the publication
+        of the sample it answers, so its age is the delay it adds to the loop. Table1's stage-2
         loop in DFBC+FFC has 93 deg of phase at its 14.6 Hz crossover, 17.7 ms of delay; one
         process per node delivered forces up to 59 ms (p99) after their sample, and aged from
         their arrival they were applied: the stages rang up to 19 mm/s until the supervisor
         tripped. An answer to a sample older than the ring counts as never valid; one stamped
-        at or ahead of the next sample (not an answer of this loop) from ``now_ns``."""
+        at or ahead of the next sample (not an answer of this loop) from its arrival. One
+        call a force (three a sample): the latency and the time it counts from share the
+        sample's index."""
+        now_ns = time.monotonic_ns() if wall_ns is None else wall_ns + self._wall_to_mono
         k = round(stamp * self.sim.cfg.plant.rate_hz / 1e9)
         age = self.sim.k - k
+        if 0 <= age < RING:  # older answers: their publication time is gone
+            self.latency_hist.add((now_ns - self._ring[k % RING]) * 1e-9)
+        if self._timing and 0 <= k < len(self._t_pub):
+            self._lat[cid].append(now_ns - self._t_pub[k])
         if age <= 0:  # not published yet: not an answer of this graph's loop
             return now_ns
         return self._ring[k % RING] if age < RING else -(2**62)
+
+    def published_s(self, k: int) -> float:
+        """Monotonic s of sample ``k``'s publication (the unit and value :meth:`arrived`
+        gives its answers, in s); -inf before sample 0."""
+        return self._ring[k % RING] * 1e-9 if k >= 0 else -math.inf
 
     def missed(self, missing: list[str], absent: list[str], barrier: LockstepBarrier) -> None:
         """Log a lockstep timeout."""

@@ -17,7 +17,7 @@ of phase) 17.7 ms of delay is the whole phase margin. So against a rig the contr
 an input later than its limit with zero force.
 
 Not against the simulated plant, which ages every force itself from its sample's publication
-(``PlantIO.sample_time``) and whose schedule is elastic: it computes a backlog of up to 20
+(``PlantIO.arrived``) and whose schedule is elastic: it computes a backlog of up to 20
 samples at once after a late wake-up, and beyond that drops the backlog and moves its
 schedule on (:class:`.pacer.Pacer`), so a stamp does not tell when its sample was published.
 Measured, one process per node: the guard judged 5,321 of 5,470 inputs old in the 2 s after a

@@ -42,6 +42,10 @@ class HeardEcho:
         cids = list(controllers)
         self.boot = dict.fromkeys(cids, 0)
         self.told = dict.fromkeys(cids, 0)
+        #: True while a boot is not echoed yet: :meth:`took` is called only then (three forces
+        #: a sample). Set by the executor after the boot it learnt, cleared by the hot thread
+        #: before it looks at the boots again, so neither side can hide the other's change.
+        self.pending = False
         self.pubs = {c: node.create_publisher(Int64, topics.LOCAL.heard(c), qos.latched())
                      for c in cids}
         for c in cids:
@@ -50,14 +54,17 @@ class HeardEcho:
 
     def _on_boot(self, cid: str, msg: Int64) -> None:
         self.boot[cid] = int(msg.data)
+        self.pending = True
 
     def took(self, cid: str) -> None:
-        """The plant took a force of ``cid``: echo its boot if not told yet (cheap per sample:
-        two dict reads)."""
+        """The plant took a force of ``cid``: echo its boot if not told yet (the caller may
+        skip it while not :attr:`pending`)."""
         boot = self.boot.get(cid, 0)
         if boot and boot != self.told[cid]:
             self.told[cid] = boot
             self.pubs[cid].publish(Int64(data=boot))
+        self.pending = False
+        self.pending = any(b and b != self.told[c] for c, b in self.boot.items())
 
 
 class HeardBy:

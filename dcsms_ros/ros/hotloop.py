@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import math
 import os
 import sys
 import threading
@@ -89,6 +90,9 @@ class Served(LanePath, Protocol):
 
     node: Node
     lazy_tick: bool
+
+    @property
+    def ticking(self) -> bool: ...
 
     def resolve(self) -> list[Subscription]: ...
 
@@ -262,8 +266,10 @@ class HotLoop:
         first_node = self.paths[0].node
         paths, serving = self.paths, self._serving
         lazy = [p.lazy_tick for p in paths]
-        # when each lazy tick is due next (monotonic s); the others' stay -1: every pass
-        dues = [-1.0] * len(paths)
+        # when each path's tick is due next (monotonic s): a lazy one's when its wait passed,
+        # the others' -1 (every pass); a path without a tick never (no call to learn that)
+        first = [-1.0 if p.ticking else math.inf for p in paths]
+        dues = list(first)
         monotonic = time.monotonic
         waits = self._lanes  # made by start()
         assert waits is not None
@@ -316,12 +322,12 @@ class HotLoop:
                 timeout = IDLE_S
                 if self._rearm:
                     self._rearm = False
-                    dues = [-1.0] * len(paths)
+                    dues = list(first)
                 now = monotonic()
                 for i, p in enumerate(paths):
                     due = dues[i]
-                    if now < due:  # a lazy tick not due: its deadline only moved later
-                        timeout = min(timeout, due - now)
+                    if now < due:  # a lazy tick not due (its deadline only moved later), or none
+                        timeout = min(timeout, due - now)  # (no tick: inf, no change)
                         continue
                     nxt = p.tick()
                     if nxt is not None:

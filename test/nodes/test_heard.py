@@ -15,6 +15,7 @@ from std_msgs.msg import Int64
 from dcsms_ros.core import topics
 from dcsms_ros.nodes.feedback_controller import FeedbackControllerNode
 from dcsms_ros.ros import qos
+from dcsms_ros.ros.heard import HeardEcho
 
 PERIOD_NS = 500_000  # 2 kHz
 
@@ -110,3 +111,34 @@ def test_the_plant_echoes_each_controller_process_once_it_took_its_force(ctx, cf
         ex.shutdown()
         plant.destroy_node()
         probe.destroy_node()
+
+
+def test_the_echo_is_pending_only_while_a_boot_it_learnt_is_not_echoed(ctx):
+    """The plant calls took() only while pending: a boot learnt makes it pending, the force of
+    that controller echoes it and clears it, a force of another controller does not, and a
+    second boot (a restart) makes it pending again."""
+    node = rclpy.create_node("heard_pending", namespace="/heard_pending", context=ctx)
+    echo = HeardEcho(node, ["fb_stage1", "fb_stage2"])
+    try:
+        assert not echo.pending
+        echo._on_boot("fb_stage1", Int64(data=11))
+        echo._on_boot("fb_stage2", Int64(data=21))
+        assert echo.pending
+        echo.took("fb_stage1")
+        assert echo.pending and echo.told == {"fb_stage1": 11, "fb_stage2": 0}
+        echo.took("fb_stage2")
+        assert not echo.pending
+        echo.took("fb_stage2")  # nothing new: no echo, still not pending
+        assert not echo.pending and echo.told == {"fb_stage1": 11, "fb_stage2": 21}
+        echo._on_boot("fb_stage2", Int64(data=22))  # fb_stage2 restarted
+        assert echo.pending
+        echo.took("fb_stage1")
+        assert echo.pending
+        echo.took("fb_stage2")
+        assert not echo.pending and echo.told["fb_stage2"] == 22
+        echo._on_boot("fb_stage1", Int64(data=11))  # the latched boot again: told already
+        assert echo.pending
+        echo.took("fb_stage2")
+        assert not echo.pending and echo.told["fb_stage1"] == 11
+    finally:
+        node.destroy_node()
