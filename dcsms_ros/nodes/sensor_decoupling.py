@@ -28,7 +28,7 @@ from dcsms_ros.cdr import TWIST_STAMPED, JointStateReader, StampedWriter
 from dcsms_ros.core import topics
 from dcsms_ros.core.compileddecoupler import decoupler
 from dcsms_ros.nodes import recorder_part
-from dcsms_ros.protocols.responder import skipped
+from dcsms_ros.protocols.responder import skip_free_ns, skipped
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.guard import MAX_VELOCITY_MPS, InputGuard
@@ -85,7 +85,7 @@ class SensorDecouplingNode(GraphNode, Hosted):
         self.bad_messages = 0
         self.published = 0  # answers sent (a repeat too); real time: fewer than samples
         self._rate = cfg.plant.rate_hz
-        self._gap_ns = 1.25e9 / self._rate  # below skipped()'s first whole sample
+        self._gap_ns = skip_free_ns(self._rate)
         self._hold_cap = round(cfg.control.input_timeout_s * cfg.plant.rate_hz)
         self._last_raw: np.ndarray | None = None
         self._pending: tuple[int, np.ndarray] | None = None  # real time: the newest answer
@@ -126,7 +126,7 @@ class SensorDecouplingNode(GraphNode, Hosted):
         last = self.answers.last_ns
         if not self.answers.due(ns):
             return
-        # skipped() is 0 for a gap under 1.5 sample periods: not called for the usual one
+        # not called for the usual gap, where it is 0
         if self._last_raw is not None and ns - last > self._gap_ns:
             gap = skipped(last, ns, self._rate, self._hold_cap)
             for _ in range(gap):

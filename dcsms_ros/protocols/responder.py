@@ -133,4 +133,11 @@ def skipped(last_ns: int, ns: int, rate_hz: float, cap: int) -> int:
     return max(min(round((ns - last_ns) * rate_hz / 1e9) - 1, cap), 0)
 
 
-__all__ = ["Answerer", "StampResponder", "Verdict", "skipped"]
+def skip_free_ns(rate_hz: float) -> float:
+    """A gap (ns) between answered stamps at ``rate_hz`` below which :func:`skipped` is 0 (it
+    counts whole samples from 1.5 periods on): a per-sample caller compares the gap with it
+    and calls :func:`skipped` only above it."""
+    return 1.25e9 / rate_hz
+
+
+__all__ = ["Answerer", "StampResponder", "Verdict", "skip_free_ns", "skipped"]

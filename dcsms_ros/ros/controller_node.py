@@ -46,7 +46,7 @@ from dcsms_ros.errors import ConfigError
 from dcsms_ros.protocols.gate import MATCH_TIMEOUT_S
 from dcsms_ros.protocols.inputage import InputAge
 from dcsms_ros.protocols.pacer import Watchdog
-from dcsms_ros.protocols.responder import skipped
+from dcsms_ros.protocols.responder import skip_free_ns, skipped
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.clock import steady_timer
 from dcsms_ros.ros.connectivity import has_reader, writer_matched
@@ -118,7 +118,7 @@ class ControllerNode(GraphNode, Hosted):
         if enabled and not self.lockstep:
             self.loop.enable(True)
         self.dof, self.rate = cfg.plant.dof, cfg.plant.rate_hz
-        self._gap_ns = 1.25e9 / self.rate  # below skipped()'s first whole sample
+        self._gap_ns = skip_free_ns(self.rate)
         self.guard = InputGuard(self, f"{cid} velocity", MAX_VELOCITY_MPS)
         self.writer = StampedWriter(WRENCH_STAMPED, ControllerId.parse(cid).frame, self.dof)
         self.watchdog = Watchdog(cfg.control.input_timeout_s)
@@ -184,7 +184,7 @@ class ControllerNode(GraphNode, Hosted):
         if not self.answers.due(ns):
             return
         last = self.answers.last_ns
-        # skipped() is 0 for a gap under 1.5 sample periods: not called for the usual one
+        # not called for the usual gap, where it is 0
         if ns - last > self._gap_ns and not self.lockstep and last >= 0 and self._linked:
             # real time drops samples under load (keep-last 1): the fade follows the stamps,
             # so a switch or a trip fades in control.fade_time_s of plant time, not messages;

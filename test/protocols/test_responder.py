@@ -5,7 +5,13 @@ from __future__ import annotations
 
 import pytest
 
-from dcsms_ros.protocols.responder import Answerer, StampResponder, Verdict, skipped
+from dcsms_ros.protocols.responder import (
+    Answerer,
+    StampResponder,
+    Verdict,
+    skip_free_ns,
+    skipped,
+)
 
 
 def test_new_repeat_old() -> None:
@@ -101,6 +107,20 @@ def test_list_answer_is_repeated_as_one_object() -> None:
 ])
 def test_skipped_counts_whole_missing_samples(last, ns, cap, want):
     assert skipped(last, ns, 2000.0, cap) == want
+
+
+@pytest.mark.parametrize("rate", [2000.0, 3000.0, 1000.0, 1234.5])
+def test_skipped_is_zero_below_the_skip_free_gap_and_one_from_one_and_a_half_periods(rate):
+    """A caller may leave skipped() out for a gap below skip_free_ns: it is 0 there (the
+    stamps of a rate whose period is no whole number of ns too), and 1 once a sample is
+    missing."""
+    free = skip_free_ns(rate)
+    period = 1e9 / rate
+    last = round(7 * period)
+    for ns in range(last + 1, int(last + free) + 1, max(int(period / 50), 1)):
+        assert skipped(last, ns, rate, 100) == 0, (rate, ns - last)
+    assert skipped(last, round(9 * period), rate, 100) == 1
+    assert free > period  # the usual gap, one period, is below it
 
 
 def test_advance_marks_a_stamp_computed_without_an_answer_yet():
