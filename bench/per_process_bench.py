@@ -40,12 +40,14 @@ CPU_WHY = ("NOT met: a process that only relays each message, woken across cores
            "rest is the interpreter, cold at every wake-up: a controller's work written out in "
            "the loop costs the relay + 3-8 us, the same work through the package's parts + "
            "24-38 us, the node (its hot loop, lane input, publisher, part recorder) ~+20 us "
-           "more (the answer rows below); a sample runs 22-24 Python calls in a controller "
-           "(40 at 1af3881), 33 in the decoupling (47), 56 in the plant (83), counted "
-           "by a profile hook; of a controller's hot thread 64 % is libpython and "
-           "15 % the kernel switching it back in (perf, cpu-clock); the plant publishes 5 "
-           "messages (its 3 true twists recorded only, encoded in the part recorder's batch), "
-           "drains 3 lanes and steps; docs/performance.md)")
+           "more (the answer rows below); a controller runs ~1,200 bytecodes a sample (input "
+           "29 %, its work 50 %, publishing 11 %, recording 9 %; decoupling ~1,500, plant "
+           "~2,800, a third of it the part recorder's warm batch), 22 Python calls, one "
+           "select, read and write; of its hot thread 64 % is libpython and 15 % the kernel "
+           "switching it back in (perf, cpu-clock). The interpreter's build counts: under "
+           "pyenv's 3.11 (no --enable-optimizations, a shared libpython) the graph took 21-31 % "
+           "more CPU a sample than under Debian's, which `make venv` now picks; "
+           "docs/performance.md)")
 #: CPU per sample (us) each node of the per-process graph may spend, recorder per message.
 CPU_TARGETS_US = {"plant_simulator": 100.0, "sensor_decoupling": 60.0, "fb_stage1": 40.0,
                   "fb_stage2": 40.0, "ff_stage1": 40.0, "recorder": 15.0}
