@@ -63,7 +63,7 @@ def env(**kv: str) -> Any:
 def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool = True,
               timeout_s: float = 600.0, on_running: Any = None, rt_priority: int = 0,
               composed: bool = False, record: str | None = None,
-              config: Path = CONFIG) -> dict[str, Any]:
+              config: Path = CONFIG, rt_cpus: frozenset[int] = frozenset()) -> dict[str, Any]:
     """Start the graph (one process per node, or ``composed``), step ``seconds`` of simulated
     time, return the timings. ``record``: ``process`` or ``composed`` runs the recorder (every
     topic of the graph and /diagnostics) beside it; ``parts`` (one process per node, what
@@ -71,7 +71,7 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     rest in a recorder process, merged into one bag at the end.
 
     ``on_running(kids)`` (e.g. a profiler attaching to ``kid.proc.pid``) is called once the
-    plant steps."""
+    plant steps; ``rt_cpus``: the CPUs of the control path's hot threads (``--rt-cpus``)."""
     from dcsms_ros.cli import deploy, processes
     from dcsms_ros.cli.hoststeal import read_cpu_times, steal_fraction
     from dcsms_ros.cli.parts import RECORDER_PART, merge_parts, parts_dir
@@ -105,9 +105,10 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
         rec = [processes.Child("recorder", argv)]
     if composed:
         kids = [deploy.composed_child(graph_file, params, rt_priority,
-                                      [str(bag), *recorded] if record == "composed" else ())]
+                                      [str(bag), *recorded] if record == "composed" else (),
+                                      rt_cpus)]
     else:
-        kids = deploy.children(spec, params, rt_priority)
+        kids = deploy.children(spec, params, rt_priority, rt_cpus)
         for k in kids if streams else []:
             k.env.update({RECORD_PART_ENV: str(parts / k.name),
                           RECORD_TOPICS_ENV: " ".join(streams)})

@@ -23,6 +23,7 @@ import relay_floor
 from graph_run import env, run_graph
 
 from dcsms_ros.cli.hoststeal import busy_fraction, percents, read_cpu_times
+from dcsms_ros.graph import format_cpus
 
 Row = dict[str, Any]
 
@@ -48,6 +49,11 @@ CPU_WHY = ("NOT met: a process that only relays each message, woken across cores
            "pyenv's 3.11 (no --enable-optimizations, a shared libpython) the graph took 21-31 % "
            "more CPU a sample than under Debian's, which `make venv` now picks; "
            "docs/performance.md)")
+#: The CPUs of the CPU rows' pinned run (``--rt-cpus``): the last core this process may use.
+PIN_CPUS = frozenset({max(os.sched_getaffinity(0))})
+#: Why the pinned run is not the default (docs/performance.md, "Where the hot threads run").
+PIN_WHY = ("no wake-up crosses cores, but the five share the core and the samples come later "
+           "(not the default: docs/performance.md)")
 #: CPU per sample (us) each node of the per-process graph may spend, recorder per message.
 CPU_TARGETS_US = {"plant_simulator": 100.0, "sensor_decoupling": 60.0, "fb_stage1": 40.0,
                   "fb_stage2": 40.0, "ff_stage1": 40.0, "recorder": 15.0}
@@ -146,9 +152,14 @@ def cpu_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
     the node processes), in the order :data:`CPU_ORDER`; the recording's per message written:
     what recording adds to the whole graph's CPU (every process, the recorder process
     included), per message, beside the spread of the two runs of each setting."""
-    runs = [run_graph("realtime", rt_s, base + 10 + i, tmp, timeout_s=rt_s * 3 + 120,
-                      rt_priority=0 if smoke else 50, record=rec)
-            for i, rec in enumerate(CPU_ORDER)]
+    prio = 0 if smoke else 50
+    runs, pinned = [], None
+    for i, rec in enumerate(CPU_ORDER):
+        runs.append(run_graph("realtime", rt_s, base + 10 + i, tmp, timeout_s=rt_s * 3 + 120,
+                              rt_priority=prio, record=rec))
+        if i == 1:  # between the two recorded runs: every hot thread on the last core
+            pinned = run_graph("realtime", rt_s, base + 15, tmp, timeout_s=rt_s * 3 + 120,
+                               rt_priority=prio, record="parts", rt_cpus=PIN_CPUS)
     offs = [r for r, rec in zip(runs, CPU_ORDER, strict=True) if rec is None]
     ons = [r for r, rec in zip(runs, CPU_ORDER, strict=True) if rec is not None]
     with env(DCSMS_HOST_LANES="0"):  # the same recorded run on DDS alone, for comparison
@@ -183,6 +194,10 @@ def cpu_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
             note = f"{100 * on:.0f} % of a core at {rate:g} Hz" + (
                 f"; on DDS alone (DCSMS_HOST_LANES=0) {dds / rate * 1e6:.0f} us"
                 if dds is not None else "")
+            one = (pinned or {}).get("cpu", {}).get(name)
+            if one is not None:
+                note += (f"; every hot thread on CPU {format_cpus(PIN_CPUS)} (--rt-cpus, one "
+                         f"run) {one / pinned['rate_hz'] * 1e6:.1f} us: {PIN_WHY}")
         if value > target:
             note += f"; {CPU_WHY}"
         rows.append({"name": f"graph: CPU per sample, per process, recording on, {name}",

@@ -40,6 +40,39 @@ SCHEDULES = ("lockstep", "realtime")
 #: :func:`dcsms_ros.ros.runtime.rt_priority_from_env`); set for the control path by
 #: ``--rt-priority`` and the launch argument ``rt_priority``.
 RT_PRIORITY_ENV = "DCSMS_RT_PRIORITY"
+#: Environment variable: the CPUs (a list as ``taskset -c`` takes it: ``1``, ``0,2-3``) a node
+#: process's hot thread may run on (only it: :func:`dcsms_ros.ros.runtime.rt_cpus_from_env`);
+#: set for the control path by ``--rt-cpus`` and the launch argument ``rt_cpus``. Unset: the
+#: kernel places it.
+RT_CPUS_ENV = "DCSMS_RT_CPUS"
+
+
+def parse_cpus(text: str) -> frozenset[int]:
+    """The CPUs of a list as ``taskset -c`` takes it (``"1"``, ``"0,2-3"``; ``""``: none).
+
+    Raises
+    ------
+    ValueError
+        A malformed list, with a message that names it.
+    """
+    cpus: set[int] = set()
+    for item in (t.strip() for t in text.split(",")):
+        if not item and not text.strip():
+            continue
+        lo, sep, hi = item.partition("-")
+        try:
+            first, last = int(lo), int(hi) if sep else int(lo)
+        except ValueError:
+            raise ValueError(f"{text!r}: not a CPU list such as 1 or 0,2-3") from None
+        if first < 0 or last < first:
+            raise ValueError(f"{text!r}: not a CPU list such as 1 or 0,2-3")
+        cpus.update(range(first, last + 1))
+    return frozenset(cpus)
+
+
+def format_cpus(cpus: Collection[int]) -> str:
+    """``cpus`` as :func:`parse_cpus` reads them (``""`` for none)."""
+    return ",".join(str(c) for c in sorted(cpus))
 #: Environment variables of a recorded run of one process per node (``dcsms up --record``):
 #: the bag directory in which a node process records the per-sample topics it publishes
 #: itself, and those topics (space-separated); :mod:`dcsms_ros.nodes.recorder_part`.
@@ -278,5 +311,6 @@ def define_graph(cfg: SystemConfig, *, schedule: str = "realtime", mode: Mode = 
     return GraphSpec(ns, schedule, n, shared_parameters(cfg, schedule, observers), tuple(nodes))
 
 
-__all__ = ["NODE_CLASSES", "RECORD_PART_ENV", "RECORD_TOPICS_ENV", "RT_PRIORITY_ENV", "GraphSpec",
-           "NodeSpec", "define_graph", "shared_parameters", "spec_from_dict"]
+__all__ = ["NODE_CLASSES", "RECORD_PART_ENV", "RECORD_TOPICS_ENV", "RT_CPUS_ENV", "RT_PRIORITY_ENV",
+           "GraphSpec", "NodeSpec", "define_graph", "format_cpus", "parse_cpus",
+           "shared_parameters", "spec_from_dict"]

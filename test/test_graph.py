@@ -10,7 +10,7 @@ from dcsms_ros.core import topics
 from dcsms_ros.core.config import load_config, with_overrides
 from dcsms_ros.core.modes import Mode
 from dcsms_ros.errors import ConfigError
-from dcsms_ros.graph import NodeSpec, define_graph, spec_from_dict
+from dcsms_ros.graph import NodeSpec, define_graph, format_cpus, parse_cpus, spec_from_dict
 
 TABLE1 = Path(__file__).resolve().parents[1] / "config" / "table1.yaml"
 
@@ -61,3 +61,18 @@ def test_one_more_node_and_bad_namespace() -> None:
     with pytest.raises(ConfigError, match="namespace"):
         define_graph(load_config(TABLE1), namespace="/bad-name")
     assert topics.check_namespace("/") == "/"
+
+
+@pytest.mark.parametrize("text, cpus", [("", set()), ("1", {1}), ("0,2-3", {0, 2, 3}),
+                                        (" 3 , 1 ", {1, 3}), ("2-2", {2})])
+def test_cpu_lists_as_taskset_takes_them(text: str, cpus: set[int]) -> None:
+    """``--rt-cpus``/``$DCSMS_RT_CPUS``: single CPUs and ranges, and back."""
+    assert parse_cpus(text) == cpus
+    assert parse_cpus(format_cpus(cpus)) == cpus
+
+
+@pytest.mark.parametrize("text", ["a", "1,", ",1", "1,,2", "3-1", "-1", "1-", "1.5"])
+def test_malformed_cpu_lists_are_refused(text: str) -> None:
+    """Anything else is a ValueError that names the list."""
+    with pytest.raises(ValueError, match="not a CPU list"):
+        parse_cpus(text)

@@ -22,7 +22,7 @@ from __future__ import annotations
 import fnmatch
 import json
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -47,8 +47,10 @@ from dcsms_ros.graph import (
     LOCKSTEP_WRITER_DEPTH,
     RECORD_PART_ENV,
     RECORD_TOPICS_ENV,
+    RT_CPUS_ENV,
     RT_PRIORITY_ENV,
     GraphSpec,
+    format_cpus,
 )
 from dcsms_ros.jsonutil import jsonable
 from dcsms_ros.protocols.runstats import RunSummary, summarize
@@ -70,27 +72,34 @@ def node_argv(spec: GraphSpec, name: str, params_file: Path) -> list[str]:
             "-r", f"__ns:={spec.namespace}", "--params-file", str(params_file), *remap]
 
 
-def children(spec: GraphSpec, params_file: Path, rt_priority: int = 0) -> list[Child]:
+def children(spec: GraphSpec, params_file: Path, rt_priority: int = 0,
+             rt_cpus: Collection[int] = ()) -> list[Child]:
     """One process per node (argv only, not started), in the spec's start order;
-    ``rt_priority`` (1-99) puts the control-path nodes under SCHED_FIFO."""
+    ``rt_priority`` (1-99) puts the control-path nodes' hot threads under SCHED_FIFO and
+    ``rt_cpus`` on those CPUs."""
     kids = []
     for n in spec.nodes:
         kid = Child(n.name, node_argv(spec, n.name, params_file))
         if rt_priority and n.control_path:
             kid.env[RT_PRIORITY_ENV] = str(rt_priority)
+        if rt_cpus and n.control_path:
+            kid.env[RT_CPUS_ENV] = format_cpus(rt_cpus)
         kids.append(kid)
     return kids
 
 
 def composed_child(graph_file: Path, params_file: Path, rt_priority: int = 0,
-                   record: Sequence[str] = ()) -> Child:
+                   record: Sequence[str] = (), rt_cpus: Collection[int] = ()) -> Child:
     """The composed process: every node of ``graph_file`` in one process (``record``: the
-    recorder's ``OUT [TOPIC ...]`` to run inside it too)."""
+    recorder's ``OUT [TOPIC ...]`` to run inside it too; ``rt_cpus``: its driver's CPUs)."""
     argv = [sys.executable, "-m", "dcsms_ros.nodes.container", "--graph", str(graph_file),
             "--params-file", str(params_file), "--rt-priority", str(rt_priority)]
     if record:
         argv += ["--record", *record]
-    return Child("graph", argv)
+    kid = Child("graph", argv)
+    if rt_cpus:
+        kid.env[RT_CPUS_ENV] = format_cpus(rt_cpus)
+    return kid
 
 
 def recorder_command(out: str | Path, topics: Sequence[str] | None = None,
@@ -118,6 +127,7 @@ class Deployment:
 
     composed: bool = False
     rt_priority: int = 0
+    rt_cpus: frozenset[int] = frozenset()
     record: Path | None = None
     record_topics: Sequence[str] | None = None
     recorder: str = "composed"
@@ -176,9 +186,10 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
             kids.append(Child("recorder", recorder_command(out, topics, exclude=streams)
                               + depth, nice=nice))
     if how.composed:
-        graph = [composed_child(graph_file, params_file, how.rt_priority, in_process)]
+        graph = [composed_child(graph_file, params_file, how.rt_priority, in_process,
+                                how.rt_cpus)]
     else:
-        graph = children(spec, params_file, how.rt_priority)
+        graph = children(spec, params_file, how.rt_priority, how.rt_cpus)
         if parts is not None:
             for kid in graph:
                 kid.env[RECORD_PART_ENV] = str(parts / kid.name)

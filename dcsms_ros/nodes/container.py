@@ -29,7 +29,8 @@ driver starts (:func:`~dcsms_ros.ros.hotloop.settle_heap`).
 
 ``--rt-priority N`` puts the driver thread (only it) under SCHED_FIFO and, in real time, the
 executor's thread on the driver's core, where it runs only while the driver waits
-(:mod:`dcsms_ros.ros.hotloop`). ``--record OUT
+(:mod:`dcsms_ros.ros.hotloop`); ``$DCSMS_RT_CPUS`` (``dcsms up --rt-cpus``) the CPUs of the
+driver, the executor's thread then on the last of them. ``--record OUT
 [TOPIC ...]`` runs the recorder node in this process too (``dcsms up --recorder composed``):
 it takes the graph's messages from the bus, every one of them, in lockstep and in real time.
 Exit status: 0 after SIGINT/SIGTERM or a finished run, 2 after a configuration error (one line).
@@ -59,7 +60,7 @@ from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hotloop import settle_heap
 from dcsms_ros.ros.hotpath import DrivenContext
 from dcsms_ros.ros.housekeeping import Housekeeper
-from dcsms_ros.ros.runtime import close_nodes, config_error, quiesce, report_hold
+from dcsms_ros.ros.runtime import close_nodes, config_error, quiesce, report_hold, rt_cpus_from_env
 from dcsms_ros.ros.serialized import Serialized, serialize
 
 
@@ -87,6 +88,7 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
     status = 0
     ctx = DrivenContext("driver")
     loop = ctx.driver
+    loop.cpus, cpus_warning = rt_cpus_from_env()
     if spec.schedule == "lockstep":
         # a lockstep driver never waits for a deadline: on its core the executor would get
         # only what the kernel's real-time throttling leaves (the mode switches, the flush)
@@ -113,8 +115,9 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
                 recorder.discover()
             settle_heap()
             loop.start(rt_priority)
-            if loop.rt_warning:
-                nodes[-1].get_logger().warning(loop.rt_warning)
+            for warning in (cpus_warning, loop.rt_warning):
+                if warning:
+                    nodes[-1].get_logger().warning(warning)
             plant = next((nd for nd in nodes if isinstance(nd, PlantSimulatorNode)), None)
 
             def done() -> bool:

@@ -128,7 +128,10 @@ class HotLoop:
         #: Native id of a thread to put on the driver's core under SCHED_FIFO (composed: the
         #: executor's thread; None: no pinning).
         self.share_core_with: int | None = None
-        #: The core the thread was pinned to (None: not pinned).
+        #: The CPUs the thread may run on (set before it starts; empty: the kernel places it).
+        self.cpus: frozenset[int] = frozenset()
+        self._pinned: frozenset[int] = frozenset()
+        #: The core the thread was pinned to (None: not pinned to one).
         self.core: int | None = None
         #: The CPU wake-up latency held while the loop runs under SCHED_FIFO (:mod:`.cpulatency`).
         self.cpu_latency: CpuLatencyRequest | None = None
@@ -166,7 +169,7 @@ class HotLoop:
         self._thread = threading.Thread(target=self._run, args=(rt_priority,), name=self.name,
                                         daemon=True)
         self._thread.start()
-        if rt_priority:  # its warnings are read once this returns
+        if rt_priority or self.cpus:  # its warnings are read once this returns
             self._prioritized.wait(1.0)
 
     def wake(self) -> None:
@@ -207,12 +210,17 @@ class HotLoop:
                 self._guard.trigger()
 
     def prioritize(self, rt_priority: int) -> str | None:
-        """Put the running thread (only it) under SCHED_FIFO ``rt_priority`` (1-99) and hold the
-        CPU wake-up latency :mod:`.cpulatency` asks for while the loop runs; returns a warning
-        when either is refused (no CAP_SYS_NICE, not root), else None."""
+        """Put the running thread (only it) on :attr:`cpus` (if any), under SCHED_FIFO
+        ``rt_priority`` (1-99), and hold the CPU wake-up latency :mod:`.cpulatency` asks for
+        while the loop runs; returns a warning when any is refused (no CAP_SYS_NICE, not
+        root), else None."""
         thread = self._thread
-        if not rt_priority or thread is None or thread.native_id is None:
+        if thread is None or thread.native_id is None:
             return None
+        if self.cpus:
+            self._pin(thread.native_id)
+        if not rt_priority:
+            return self.rt_warning
         try:
             os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(rt_priority))
         except (OSError, AttributeError) as exc:
@@ -227,11 +235,24 @@ class HotLoop:
                 self.rt_warning = f"{self.rt_warning}; {warning}" if self.rt_warning else warning
         return self.rt_warning
 
+    def _pin(self, tid: int) -> None:
+        if self._pinned == self.cpus:  # the thread's start and the host may both ask
+            return
+        self._pinned = self.cpus
+        try:
+            os.sched_setaffinity(tid, self.cpus)
+        except OSError as exc:
+            warning = f"CPUs {sorted(self.cpus)} refused ({exc}); the kernel places the thread"
+            self.rt_warning = f"{self.rt_warning}; {warning}" if self.rt_warning else warning
+            return
+        if len(self.cpus) == 1:
+            self.core = min(self.cpus)
+
     def _share_core(self, tid: int, other: int) -> None:
-        """Pin ``tid`` (this loop's thread) and ``other`` to the last core the process may use
-        (none with a single core: nothing to share then)."""
-        cores = sorted(os.sched_getaffinity(0))
-        if len(cores) < 2:
+        """Pin ``tid`` (this loop's thread) and ``other`` to one core: the last of :attr:`cpus`,
+        else the last the process may use (none with a single core: nothing to share then)."""
+        cores = sorted(self.cpus or os.sched_getaffinity(0))
+        if len(cores) < 2 and not self.cpus:
             return
         try:
             os.sched_setaffinity(tid, {cores[-1]})
@@ -243,7 +264,7 @@ class HotLoop:
         sys.setswitchinterval(min(sys.getswitchinterval(), SHARED_CORE_GIL_SWITCH_S))
 
     def _run(self, rt_priority: int) -> None:
-        if rt_priority:
+        if rt_priority or self.cpus:
             self.prioritize(rt_priority)
         self._prioritized.set()
         try:

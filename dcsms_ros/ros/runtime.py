@@ -83,6 +83,32 @@ def rt_priority_from_env() -> tuple[int, str | None]:
     return prio, None
 
 
+#: The CPUs (``taskset -c`` list) of a node process's hot thread; unset: the kernel places it.
+#: ``dcsms up --rt-cpus LIST`` sets it for the control path.
+RT_CPUS_ENV = graph.RT_CPUS_ENV
+
+
+def rt_cpus_from_env() -> tuple[frozenset[int], str | None]:
+    """The CPUs ``$DCSMS_RT_CPUS`` asks for the hot thread (empty: the kernel places it) and a
+    warning for a list that is malformed or names no CPU this process may use; never raises.
+
+    On 2 cores with every control-path hot thread on one of them, a controller took 8-27 %
+    less CPU a sample (no wake-up crosses cores) and the samples came later (the five share a
+    core): docs/performance.md, "Where the hot threads run".
+    """
+    text = os.environ.get(RT_CPUS_ENV, "").strip()
+    try:
+        cpus = graph.parse_cpus(text)
+    except ValueError as exc:
+        return frozenset(), f"{RT_CPUS_ENV}={exc}; the kernel places the hot thread"
+    usable = cpus & os.sched_getaffinity(0)
+    if cpus and not usable:
+        return frozenset(), (f"{RT_CPUS_ENV}={text!r}: none of these CPUs is available "
+                             f"(this process may use {graph.format_cpus(os.sched_getaffinity(0))}"
+                             f"); the kernel places the hot thread")
+    return usable, None
+
+
 #: Longest total wait (s) of a process's close for its reliable readers' acknowledgements.
 ACK_WAIT_S = 3.0
 #: The same after a run that finished by itself (the plant's duration): a recorder on a loaded
@@ -99,8 +125,10 @@ def wait_acked(pubs: Sequence[Any], total_s: float = ACK_WAIT_S) -> None:
 
 
 def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
-              rt_priority: int = 0, wake: Callable[[], None] | None = None) -> None:
-    """Spin ``node`` (and its hot path, under SCHED_FIFO ``rt_priority`` if 1-99) until
+              rt_priority: int = 0, wake: Callable[[], None] | None = None,
+              rt_cpus: frozenset[int] = frozenset()) -> None:
+    """Spin ``node`` (and its hot path, under SCHED_FIFO ``rt_priority`` if 1-99, on
+    ``rt_cpus`` if any) until
     ``stop()`` is true, the node finished, or the context shut down; a failing hot-path
     handler raises here, as a failing callback would.
 
@@ -123,7 +151,10 @@ def spin_node(node: Node, executor: Executor, stop: Callable[[], bool],
         hot.start()
         if hot.loop is not None:
             hot.loop.on_error = wake
-        warning = hot.loop.prioritize(rt_priority) if hot.loop is not None else None
+        warning = None
+        if hot.loop is not None:
+            hot.loop.cpus = rt_cpus
+            warning = hot.loop.prioritize(rt_priority)
         if warning:
             node.get_logger().warning(warning)
 
@@ -235,6 +266,7 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
         0 after a signal or a normal finish, 2 after a configuration error.
     """
     rt_priority, rt_warning = rt_priority_from_env()
+    rt_cpus, cpus_warning = rt_cpus_from_env()
     status = 0
     with ros_context(args, signals=True, context=HostedContext()) as ros:
         node: Node | None = None
@@ -243,14 +275,15 @@ def run(factory: Callable[..., Node], args: Sequence[str] | None = None,
         try:
             node = factory(context=ros.context)
             extra = attach(node) if attach is not None else None
-            if rt_warning:
-                node.get_logger().warning(rt_warning)
+            for warning in (rt_warning, cpus_warning):
+                if warning:
+                    node.get_logger().warning(warning)
             executor = HostExecutor(context=ros.context)
             wake = round_ender(node)
             ros.wakers.append(wake)
             try:
                 ran = True
-                spin_node(node, executor, lambda: bool(ros.stop), rt_priority, wake)
+                spin_node(node, executor, lambda: bool(ros.stop), rt_priority, wake, rt_cpus)
             finally:
                 executor.shutdown(timeout_sec=2.0)
         except DcsmsError as exc:

@@ -18,12 +18,15 @@ TABLE1 = Path(__file__).resolve().parents[2] / "config" / "table1.yaml"
 @pytest.mark.parametrize("extra, message", [
     (["--rt-priority", "120"], "--rt-priority 120: must be 0 (off) or 1..99"),
     (["--rt-priority", "-1"], "--rt-priority -1"),
+    (["--rt-cpus", "a-b"], "--rt-cpus 'a-b': not a CPU list such as 1 or 0,2-3"),
+    (["--rt-cpus", "4096"], "--rt-cpus 4096: this process may use CPUs"),
     (["--duration", "0"], "must be > 0"),
     (["--mode", "warp"], "unknown mode"),
 ])
 def test_bad_arguments_are_one_line_exit_2(extra: list[str], message: str,
                                            capsys: pytest.CaptureFixture[str]) -> None:
-    """Out-of-range priority, duration, an unknown mode: one line on stderr, exit 2."""
+    """Out-of-range priority, a bad or unavailable CPU list, duration, an unknown mode: one
+    line on stderr, exit 2."""
     assert main(["up", "--lockstep", *extra]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("dcsms: error:") and message in err, err

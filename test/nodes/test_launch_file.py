@@ -78,7 +78,11 @@ def test_launch_file_starts_the_graph_definition(launch_module: Any) -> None:
     params = yaml.safe_load(Path(actions[0].kwargs["parameters"][0]).read_text())
     assert params == spec.params_document()
     rt = {a.kwargs["name"]: a.kwargs["additional_env"] for a in actions}
-    assert rt["mode_switch"] == {} and "DCSMS_RT_PRIORITY" in rt["plant_simulator"]
+    assert rt["mode_switch"] == {}
+    assert rt["plant_simulator"] == {"DCSMS_RT_PRIORITY": "0", "DCSMS_RT_CPUS": ""}
+    pinned = _run(launch_module, rt_priority="50", rt_cpus="1")
+    assert {a.kwargs["name"]: a.kwargs["additional_env"].get("DCSMS_RT_CPUS")
+            for a in pinned}["fb_stage1"] == "1"
 
 
 def test_launch_file_follows_the_number_of_stages(launch_module: Any, tmp_path: Path) -> None:
@@ -100,3 +104,4 @@ def test_launch_file_composed_is_one_process(launch_module: Any) -> None:
     assert cmd[1:3] == ["-m", "dcsms_ros.nodes.container"]
     graph = yaml.safe_load(Path(cmd[cmd.index("--graph") + 1]).read_text())
     assert graph["schedule"] == "lockstep" and len(graph["nodes"]) == 6
+    assert proc.kwargs["additional_env"] == {"DCSMS_RT_CPUS": ""}

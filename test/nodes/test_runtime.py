@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import rclpy
@@ -16,10 +19,10 @@ from rclpy.node import Node
 from std_msgs.msg import Header
 
 from dcsms_ros.cli.deploy import children
-from dcsms_ros.graph import define_graph
-from dcsms_ros.ros.hotloop import SHARED_CORE_GIL_SWITCH_S
+from dcsms_ros.graph import RT_CPUS_ENV, define_graph
+from dcsms_ros.ros.hotloop import SHARED_CORE_GIL_SWITCH_S, HotLoop
 from dcsms_ros.ros.hotpath import GIL_SWITCH_S, DrivenContext, HotPath
-from dcsms_ros.ros.runtime import RT_PRIORITY_ENV, rt_priority_from_env
+from dcsms_ros.ros.runtime import RT_PRIORITY_ENV, rt_cpus_from_env, rt_priority_from_env
 
 
 def _policy(pid: int, tid: int) -> tuple[int, str]:
@@ -78,11 +81,68 @@ def test_only_the_hot_thread_runs_under_sched_fifo(domain) -> None:
 
 
 def test_rt_priority_covers_only_the_control_path(tmp_path, cfg) -> None:
-    """--rt-priority: plant, decoupling and controllers; not mode_switch (nor the recorder)."""
-    kids = children(define_graph(cfg), tmp_path / "params.yaml", rt_priority=50)
-    got = {k.name: k.env.get(RT_PRIORITY_ENV) for k in kids}
-    assert got == {"mode_switch": None, "fb_stage1": "50", "fb_stage2": "50", "ff_stage1": "50",
-                   "sensor_decoupling": "50", "plant_simulator": "50"}
+    """--rt-priority and --rt-cpus: plant, decoupling and controllers; not mode_switch (nor
+    the recorder)."""
+    kids = children(define_graph(cfg), tmp_path / "params.yaml", rt_priority=50,
+                    rt_cpus=frozenset({3, 1}))
+    got = {k.name: (k.env.get(RT_PRIORITY_ENV), k.env.get(RT_CPUS_ENV)) for k in kids}
+    path = ("50", "1,3")
+    assert got == {"mode_switch": (None, None), "fb_stage1": path, "fb_stage2": path,
+                   "ff_stage1": path, "sensor_decoupling": path, "plant_simulator": path}
+
+
+@pytest.mark.parametrize("value, cpus", [(None, set()), ("", set()), ("0", {0}),
+                                         (" 0 ", {0})])
+def test_rt_cpus_from_the_environment(monkeypatch, value: str | None, cpus: set[int]) -> None:
+    """Unset or empty: the kernel places the hot thread, nothing said; CPU 0 (always there)."""
+    monkeypatch.delenv(RT_CPUS_ENV, raising=False)
+    if value is not None:
+        monkeypatch.setenv(RT_CPUS_ENV, value)
+    assert rt_cpus_from_env() == (cpus, None)
+
+
+@pytest.mark.parametrize("value, said", [("abc", "not a CPU list"), ("2-1", "not a CPU list"),
+                                         ("4096", "none of these CPUs is available")])
+def test_bad_rt_cpus_are_a_warning_not_a_crash(monkeypatch, value: str, said: str) -> None:
+    """A malformed list, or one naming no CPU this process may use: named in a warning, and
+    the kernel places the thread."""
+    monkeypatch.setenv(RT_CPUS_ENV, value)
+    cpus, warning = rt_cpus_from_env()
+    assert cpus == frozenset() and warning is not None and said in warning and value in warning
+
+
+def test_rt_cpus_pin_only_the_hot_thread(domain) -> None:
+    """A control-path node started with DCSMS_RT_CPUS naming one CPU: its hot thread alone
+    (the SCHED_FIFO one) runs on that CPU; the main thread and Fast DDS's threads keep every
+    CPU the process had."""
+    allowed = os.sched_getaffinity(0)
+    if len(allowed) < 2:
+        pytest.skip("one CPU: pinning is not observable")
+    cpu = min(allowed)
+    env = {**os.environ, RT_PRIORITY_ENV: "7", RT_CPUS_ENV: str(cpu),
+           "ROS_DOMAIN_ID": str(domain)}
+    proc = subprocess.Popen([sys.executable, "-m", "dcsms_ros.nodes.sensor_decoupling",
+                             "--ros-args", "-r", "__ns:=/rt_cpus_probe"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        pinned: dict[int, set[int]] = {}
+        deadline = time.monotonic() + 60.0
+        while not pinned and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+            tasks = [int(t) for t in os.listdir(f"/proc/{proc.pid}/task")]
+            pinned = {t: a for t in tasks if (a := os.sched_getaffinity(t)) != allowed}
+        assert proc.poll() is None, proc.communicate(timeout=30)[0]
+        assert list(pinned.values()) == [{cpu}], pinned
+        (tid,) = pinned
+        assert tid != proc.pid
+        fifo = os.sched_getscheduler(tid) == os.SCHED_FIFO
+        others = [_policy(proc.pid, t) for t in tasks if t != tid]
+        assert all(pol != os.SCHED_FIFO for pol, _ in others), others
+        assert fifo or os.geteuid() != 0  # root is granted SCHED_FIFO: the pinned one has it
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.communicate(timeout=30)
 
 
 def test_a_hot_loop_shortens_the_gil_switch_interval(ctx) -> None:
@@ -152,6 +212,33 @@ def test_a_driven_context_serves_its_nodes_hot_paths_in_one_thread(ctx, domain: 
         rclpy.try_shutdown(context=driven)
 
 
+@contextlib.contextmanager
+def _driver(domain: int, name: str, **settings: Any) -> Iterator[HotLoop]:
+    """The driver of a DrivenContext serving one probe node's hot path, ``settings`` (its
+    attributes) set before the caller starts it; afterwards everything is torn down and the
+    calling thread's CPUs and the GIL switch interval are restored."""
+    me = threading.get_native_id()
+    mine = os.sched_getaffinity(me)
+    interval = sys.getswitchinterval()
+    driven = DrivenContext(f"{name}-driver")
+    for key, value in settings.items():
+        setattr(driven.driver, key, value)
+    rclpy.init(args=[], context=driven, domain_id=domain)
+    node = Node(name, context=driven)
+    hot = HotPath(node, threading.Lock())
+    hot.subscribe(Header, name, lambda m: None, 10)
+    try:
+        hot.start()
+        yield driven.driver
+    finally:
+        sys.setswitchinterval(interval)
+        os.sched_setaffinity(me, mine)  # the test runner's thread gets its cores back
+        driven.driver.stop()
+        hot.stop()
+        node.destroy_node()
+        rclpy.try_shutdown(context=driven)
+
+
 def test_a_real_time_driver_shares_its_core_with_the_executor_thread(domain: int) -> None:
     """Composed under SCHED_FIFO, the driver and the thread that created the DrivenContext (the
     host's executor thread) are pinned to one core, the last the process may use, so the
@@ -163,20 +250,11 @@ def test_a_real_time_driver_shares_its_core_with_the_executor_thread(domain: int
         pytest.skip("one core: nothing to share")
     me = threading.get_native_id()
     mine = os.sched_getaffinity(me)
-    interval = sys.getswitchinterval()
     for share in (True, False):
         sys.setswitchinterval(0.005)
-        driven = DrivenContext("share-driver")
-        if not share:
-            driven.driver.share_core_with = None
-        rclpy.init(args=[], context=driven, domain_id=domain)
-        node = Node("share_probe", context=driven)
-        hot = HotPath(node, threading.Lock())
-        hot.subscribe(Header, "share_probe", lambda m: None, 10)
-        try:
-            hot.start()
-            driven.driver.start(rt_priority=5)
-            loop = driven.driver
+        with _driver(domain, "share_probe", **({} if share else {"share_core_with": None})
+                     ) as loop:
+            loop.start(rt_priority=5)
             end = time.monotonic() + 2.0  # the thread pins itself as it starts
             while loop.core is None and loop.rt_warning is None and time.monotonic() < end:
                 time.sleep(0.01)
@@ -193,13 +271,28 @@ def test_a_real_time_driver_shares_its_core_with_the_executor_thread(domain: int
             else:
                 assert loop.core is None and os.sched_getaffinity(tid) == mine
                 assert sys.getswitchinterval() == pytest.approx(GIL_SWITCH_S)
-        finally:
-            sys.setswitchinterval(interval)
-            os.sched_setaffinity(me, mine)  # the test runner's thread gets its cores back
-            driven.driver.stop()
-            hot.stop()
-            node.destroy_node()
-            rclpy.try_shutdown(context=driven)
+
+
+def test_rt_cpus_choose_the_drivers_core(domain: int) -> None:
+    """Composed with CPUs given (``$DCSMS_RT_CPUS``): the driver and the executor's thread
+    share the last of them, not the last core of the machine; CPUs without a priority pin
+    the driver alone."""
+    allowed = sorted(os.sched_getaffinity(0))
+    if len(allowed) < 2:
+        pytest.skip("one core: nothing to choose")
+    first = allowed[0]
+    me = threading.get_native_id()
+    mine = os.sched_getaffinity(me)
+    for priority in (5, 0):
+        with _driver(domain, "cpus_probe", cpus=frozenset({first})) as loop:
+            loop.start(rt_priority=priority)
+            tid = loop.native_id
+            assert tid is not None and loop.core == first
+            assert os.sched_getaffinity(tid) == {first}
+            if priority and loop.rt_warning is None:
+                assert os.sched_getaffinity(me) == {first}
+            else:
+                assert os.sched_getaffinity(me) == mine
 
 
 #: A node process whose node fails while being destroyed: its attachment (a recorded run's
