@@ -99,8 +99,8 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     rec: list[processes.Child] = []
     parts = parts_dir(bag)
     if record in ("process", "parts"):
-        out = parts / RECORDER_PART if streams else bag
-        argv = [*deploy.recorder_command(out, recorded, exclude=streams),
+        into = parts / RECORDER_PART if streams else bag
+        argv = [*deploy.recorder_command(into, recorded, exclude=streams),
                 "--queue-depth", str(LOCKSTEP_WRITER_DEPTH)]
         rec = [processes.Child("recorder", argv)]
     if composed:
@@ -157,8 +157,8 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     z = np.load(timing)
     hz = os.sysconf("SC_CLK_TCK")
     span = max(t_cpu1 - t_cpu0, 1e-9)
-    cpu = {n: (cpu1[n] - cpu0[n]) / hz / span for n in cpu0
-           if cpu0.get(n) is not None and cpu1.get(n) is not None}
+    cpu = {n: (b - a) / hz / span for n, a in cpu0.items()
+           if a is not None and (b := cpu1.get(n)) is not None}
     c0, c1 = z["cpu_s"]
     t = z["t_pub_ns"].astype(np.float64) * 1e-9
     # the plant's process CPU over its run (composed: every node, the in-process recorder)
