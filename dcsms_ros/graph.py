@@ -73,6 +73,8 @@ def parse_cpus(text: str) -> frozenset[int]:
 def format_cpus(cpus: Collection[int]) -> str:
     """``cpus`` as :func:`parse_cpus` reads them (``""`` for none)."""
     return ",".join(str(c) for c in sorted(cpus))
+
+
 #: Environment variables of a recorded run of one process per node (``dcsms up --record``):
 #: the bag directory in which a node process records the per-sample topics it publishes
 #: itself, and those topics (space-separated); :mod:`dcsms_ros.nodes.recorder_part`.

@@ -89,8 +89,9 @@ RT_CPUS_ENV = graph.RT_CPUS_ENV
 
 
 def rt_cpus_from_env() -> tuple[frozenset[int], str | None]:
-    """The CPUs ``$DCSMS_RT_CPUS`` asks for the hot thread (empty: the kernel places it) and a
-    warning for a list that is malformed or names no CPU this process may use; never raises.
+    """The CPUs ``$DCSMS_RT_CPUS`` asks for the hot thread that this process may use (empty:
+    the kernel places it) and a warning for a list that is malformed or names a CPU this
+    process may not use; never raises.
 
     On 2 cores with every control-path hot thread on one of them, a controller took 8-27 %
     less CPU a sample (no wake-up crosses cores) and the samples came later (the five share a
@@ -101,12 +102,16 @@ def rt_cpus_from_env() -> tuple[frozenset[int], str | None]:
         cpus = graph.parse_cpus(text)
     except ValueError as exc:
         return frozenset(), f"{RT_CPUS_ENV}={exc}; the kernel places the hot thread"
-    usable = cpus & os.sched_getaffinity(0)
-    if cpus and not usable:
+    allowed = os.sched_getaffinity(0)
+    usable = cpus & allowed
+    if usable == cpus:
+        return usable, None
+    where = f"this process may use {graph.format_cpus(allowed)}"
+    if not usable:
         return frozenset(), (f"{RT_CPUS_ENV}={text!r}: none of these CPUs is available "
-                             f"(this process may use {graph.format_cpus(os.sched_getaffinity(0))}"
-                             f"); the kernel places the hot thread")
-    return usable, None
+                             f"({where}); the kernel places the hot thread")
+    return usable, (f"{RT_CPUS_ENV}={text!r}: CPUs {graph.format_cpus(cpus - allowed)} are not "
+                    f"available ({where}); the hot thread runs on {graph.format_cpus(usable)}")
 
 
 #: Longest total wait (s) of a process's close for its reliable readers' acknowledgements.

@@ -101,14 +101,18 @@ def test_rt_cpus_from_the_environment(monkeypatch, value: str | None, cpus: set[
     assert rt_cpus_from_env() == (cpus, None)
 
 
-@pytest.mark.parametrize("value, said", [("abc", "not a CPU list"), ("2-1", "not a CPU list"),
-                                         ("4096", "none of these CPUs is available")])
-def test_bad_rt_cpus_are_a_warning_not_a_crash(monkeypatch, value: str, said: str) -> None:
+@pytest.mark.parametrize("value, said, cpus", [
+    ("abc", "not a CPU list", set()), ("2-1", "not a CPU list", set()),
+    ("4096", "none of these CPUs is available", set()),
+    ("0,4096", "CPUs 4096 are not available", {0}),
+])
+def test_bad_rt_cpus_are_a_warning_not_a_crash(monkeypatch, value: str, said: str,
+                                               cpus: set[int]) -> None:
     """A malformed list, or one naming no CPU this process may use: named in a warning, and
-    the kernel places the thread."""
+    the kernel places the thread; a list naming some it may use: those, and a warning."""
     monkeypatch.setenv(RT_CPUS_ENV, value)
-    cpus, warning = rt_cpus_from_env()
-    assert cpus == frozenset() and warning is not None and said in warning and value in warning
+    got, warning = rt_cpus_from_env()
+    assert got == cpus and warning is not None and said in warning and value in warning
 
 
 def test_rt_cpus_pin_only_the_hot_thread(domain) -> None:
