@@ -153,7 +153,8 @@ def cpu_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
     what recording adds to the whole graph's CPU (every process, the recorder process
     included), per message, beside the spread of the two runs of each setting."""
     prio = 0 if smoke else 50
-    runs, pinned = [], None
+    runs: list[dict[str, Any]] = []
+    pinned: dict[str, Any] = {"cpu": {}, "rate_hz": 1.0}
     for i, rec in enumerate(CPU_ORDER):
         runs.append(run_graph("realtime", rt_s, base + 10 + i, tmp, timeout_s=rt_s * 3 + 120,
                               rt_priority=prio, record=rec))
@@ -194,7 +195,7 @@ def cpu_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
             note = f"{100 * on:.0f} % of a core at {rate:g} Hz" + (
                 f"; on DDS alone (DCSMS_HOST_LANES=0) {dds / rate * 1e6:.0f} us"
                 if dds is not None else "")
-            one = (pinned or {}).get("cpu", {}).get(name)
+            one = pinned["cpu"].get(name)
             if one is not None:
                 note += (f"; every hot thread on CPU {format_cpus(PIN_CPUS)} (--rt-cpus, one "
                          f"run) {one / pinned['rate_hz'] * 1e6:.1f} us: {PIN_WHY}")
