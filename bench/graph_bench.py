@@ -257,11 +257,11 @@ def _lockstep_why(composed: float, process: float, runs: Sequence[float] = ()) -
     return (f"; NOT met, {' and '.join(why)}{scatter}"
             ": the step is one Python thread doing every node's work, spread thin (py-spy, the "
             "plant's, the decoupling's and the controllers' samples compiled: plant 37 %, "
-            "controllers 22 % (their kernel 7 %), decoupling 15 %, recorder 11 %, checkpoints 7 "
-            "%; no source line above 3 %), and it is preempted on a shared machine "
-            "(performance.md, the composed lockstep step); the compiled plant and decoupling made"
-            " the 6 processes faster too (5-6 %), and host lanes 7-14 % before (same-run pairs, "
-            "performance.md)")
+            "controllers 22 % (their kernel 7 %), decoupling 15 %, recorder 11 %, "
+            "checkpoints 7 %; no source line above 3 %), and it is preempted on a shared "
+            "machine (performance.md, the composed lockstep step); the compiled plant and "
+            "decoupling made the 6 processes faster too (5-6 %), and host lanes 7-14 % before "
+            "(same-run pairs, performance.md)")
 
 
 def _up_row(smoke: bool, tmp: Path, domain: int) -> Row:
