@@ -253,10 +253,12 @@ class ModeSwitchNode(GraphNode, Hosted):
         self._judge()
         await self._follow()
 
-    def _judge(self, through_ns: int | None = None) -> None:
+    def _judge(self, through_ns: int | None = None, drain: bool = True) -> None:
         """Judge the streams through ``through_ns`` (None: what arrived); a trip or the
-        supervisor's decision sets the mode the controllers must follow (:meth:`_follow`)."""
-        self.watch.drain()
+        supervisor's decision sets the mode the controllers must follow (:meth:`_follow`).
+        ``drain=False``: the queues were just drained (a checkpoint's samples are in)."""
+        if drain:
+            self.watch.drain()
         if self.watch.sfeed is not None:
             transitions = self.watch.sfeed.step(through_ns)
             if transitions:
@@ -292,7 +294,9 @@ class ModeSwitchNode(GraphNode, Hosted):
     def _judge_checkpoint(self, stamp_ns: int) -> None:
         """Lockstep: judge the asked checkpoint; a switch it decides is handed to the
         executor (:meth:`_follow` waits there for the controllers' replies)."""
-        self._judge(stamp_ns)
+        # CheckpointAnswers drained the queues to see that the samples are in: a second
+        # drain would read four empty queues
+        self._judge(stamp_ns, drain=False)
         if self._target is not None:
             self._follow_gc.trigger()
 

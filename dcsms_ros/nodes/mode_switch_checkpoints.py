@@ -40,7 +40,8 @@ class CheckpointAnswers:
     watch : TableWatch
         The streams a checkpoint needs complete.
     judge : callable
-        ``judge(stamp_ns)``: judge the checkpoint (may set a mode the controllers must follow).
+        ``judge(stamp_ns)``: judge the checkpoint, whose samples were just drained into
+        ``watch`` (may set a mode the controllers must follow).
     following : callable
         ``following()``: True while the controllers still have to follow a decision.
     verdict : callable

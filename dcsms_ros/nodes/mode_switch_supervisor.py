@@ -21,10 +21,11 @@ from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import JointState
 
 from dcsms_ros.cdr import JOINT_STATE, TWIST_STAMPED, Batch, BatchReader
-from dcsms_ros.core import topics
+from dcsms_ros.core import fastsim, topics
 from dcsms_ros.core.checkpoints import CheckpointFeed
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.modes import Mode
+from dcsms_ros.core.sosfilter import BlockFilter, sosfilt
 from dcsms_ros.core.supervision import LazyGains, make_supervisor, settings_from
 from dcsms_ros.core.supervisor import Transition
 from dcsms_ros.core.trip import TripChecker
@@ -38,9 +39,9 @@ from dcsms_ros.ros.stability import StabilityGuard
 TRIP_DEPTH = 4000
 
 
-def _trip_feed(cfg: SystemConfig) -> TripFeed:
+def _trip_feed(cfg: SystemConfig, block_filter: BlockFilter) -> TripFeed:
     return TripFeed(TripChecker(cfg.control, cfg.plant.rate_hz, cfg.plant.num_stages,
-                                cfg.plant.dof), cfg.plant.rate_hz)
+                                cfg.plant.dof, block_filter), cfg.plant.rate_hz)
 
 
 class TableWatch:
@@ -73,12 +74,17 @@ class TableWatch:
                  lockstep: bool, watch: bool) -> None:
         self.hot = hot
         n = cfg.plant.num_stages
-        self.feed = _trip_feed(cfg)
+        # composed, numba is loaded (the plant's) and every us is the one driver thread's: the
+        # compiled block filter, the same bits (a checkpoint's three Python band-passes took
+        # ~180 us of the ~1 ms a composed lockstep checkpoint costs, docs/performance.md)
+        self._block: BlockFilter = (fastsim.sosfilt if hot.bus is not None and
+                                    fastsim.available() else sosfilt)
+        self.feed = _trip_feed(cfg, self._block)
         self.sfeed: SupervisedFeed | None = None
         if watch and cfg.supervisor.enabled:
             sup = make_supervisor(cfg, mode, guard.allow)
             sup.stable = lambda m: guard.refuse_mode(m) is None
-            self.sfeed = SupervisedFeed(self.feed, CheckpointFeed(cfg), sup)
+            self.sfeed = SupervisedFeed(self.feed, CheckpointFeed(cfg, self._block), sup)
         self._forces = BatchReader(JOINT_STATE)
         self._twists = [BatchReader(TWIST_STAMPED) for _ in range(n + 1)]  # stages, ground
         self._cols = [2] if cfg.plant.dof == 1 else list(range(6))  # z, or the whole twist
@@ -103,9 +109,10 @@ class TableWatch:
         """Accepted parameter changes: a new trip checker for ``control.trip_*``, the
         supervisor's settings from the next checkpoint."""
         if any(n.startswith("control.trip_") for n in changed):
-            self.feed = _trip_feed(cfg)
+            self.feed = _trip_feed(cfg, self._block)
             if self.sfeed is not None:
-                self.sfeed = SupervisedFeed(self.feed, CheckpointFeed(cfg), self.sfeed.sup)
+                self.sfeed = SupervisedFeed(self.feed, CheckpointFeed(cfg, self._block),
+                                            self.sfeed.sup)
         if self.sfeed is not None and any(n.startswith(("supervisor.", "control.trip_rms"))
                                           for n in changed):
             self.sfeed.sup.s = settings_from(cfg)

@@ -30,7 +30,13 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Header, Int64
 
-from dcsms_ros.cdr import TWIST_STAMPED, JointStateWriter, StampedWriter, header_bytes
+from dcsms_ros.cdr import (
+    TWIST_STAMPED,
+    JointStateWriter,
+    StampedWriter,
+    clock_bytes,
+    header_bytes,
+)
 from dcsms_ros.core import topics
 from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.protocols.barrier import LockstepBarrier
@@ -45,7 +51,7 @@ from dcsms_ros.ros.connectivity import (
 )
 from dcsms_ros.ros.intraprocess import SamplePublisher
 from dcsms_ros.ros.logthrottle import Throttled
-from dcsms_ros.ros.msgs import sample_ns, to_stamp
+from dcsms_ros.ros.msgs import sample_ns
 from dcsms_ros.ros.params import declare_observed
 from dcsms_ros.ros.readiness import DECOUPLING, ReadySet
 from dcsms_ros.ros.reports import Reports, Status
@@ -184,7 +190,7 @@ class PlantIO:
         if self._applied is not None:  # lockstep (real time flushed them in advance())
             self.flush_applied()
         if k % self.clock_every == 0:
-            self.pub_clock.publish(ClockMsg(clock=to_stamp(ns)))
+            self.pub_clock.publish(clock_bytes(ns))
         for b, (pub, v) in enumerate(zip(self.pub_truth, truth, strict=False)):
             # observed: recorded here (encoded in the part's batch), no call to ask
             if pub.observed or pub.wanted():

@@ -7,6 +7,7 @@ import time
 import numpy as np
 import rclpy
 from node_helpers import executor_for, overrides, spin_until
+from rosgraph_msgs.msg import Clock
 from rosmsgs import stamp_ns
 from sensor_msgs.msg import JointState
 
@@ -33,6 +34,9 @@ def test_absent_controller_times_out_and_equals_batch_without_it(ctx, cfg):
     applied: dict[int, np.ndarray] = {}
     probe.create_subscription(JointState, topics.ACTUATORS_APPLIED, lambda m: applied.__setitem__(
         stamp_ns(m.header.stamp), np.array(m.effort)), qos.stream_pub(True))
+    clock: list[int] = []
+    probe.create_subscription(Clock, topics.CLOCK, lambda m: clock.append(stamp_ns(m.clock)),
+                              qos.clock())
     ex = executor_for(ctx, plant, dec, *fbs, probe)
     t0 = time.monotonic()
     assert spin_until(ex, lambda: plant.finished, 60.0), "the plant hung"
@@ -46,5 +50,12 @@ def test_absent_controller_times_out_and_equals_batch_without_it(ctx, cfg):
     ref = simulate(cfg, Mode.DFBC, duration)
     got = np.array([applied[k] for k in sorted(applied)])
     np.testing.assert_array_equal(got, ref.applied)
-    print(f"in-process lockstep with one absent controller: {steps} samples in {wall:.2f} s")
+    # /clock (serialized by the plant, cdr.clock_bytes): the sample times every 1/100 s
+    assert clock, "no /clock"
+    every = int(round(cfg.plant.rate_hz / 100.0))  # clock_rate_hz's default
+    assert clock == sorted(set(clock))
+    period_ns = round(every * 1e9 / cfg.plant.rate_hz)
+    assert all(c % period_ns == 0 and 0 <= c < duration * 1e9 for c in clock), clock
+    print(f"in-process lockstep with one absent controller: {steps} samples in {wall:.2f} s, "
+          f"{len(clock)} /clock")
     ex.shutdown()
