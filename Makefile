@@ -79,7 +79,7 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
 typecheck: $(STAMP)
-	$(VENV)/bin/mypy dcsms_ros
+	$(VENV)/bin/mypy dcsms_ros bench
 
 # pytest exits 5 when it collects nothing; that fails the target like any other error.
 pytest: $(STAMP)

@@ -23,7 +23,7 @@ print(int(hwm.split()[1]) / 1024.0)
 
 def _bag(tmp: Path, name: str, seconds_per_mode: float) -> tuple[Path, int]:
     """Synthetic 2 kHz bag, 4 modes x ``seconds_per_mode``, 4 data topics; (path, messages)."""
-    from synth_bag import write_bag
+    from synth_bag import write_bag  # type: ignore[import-not-found]  # test/analysis, above
 
     path = write_bag(tmp / name, fs=2000.0, seconds=seconds_per_mode)
     from rosbags.rosbag2 import Reader

@@ -228,13 +228,14 @@ def composed_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row]:
     # recording on, in the process (`dcsms up --composed --record`'s default), repeated,
     # each run beside the machine's floor
     held = latency_from_env()[0]  # as the graph's runs hold it
-    secs, runs, floors, idle = composed_realtime.measure(smoke, tmp, base + 15, min(rt_s, 20.0),
-                                                         timer_floor.measure, held)
-    kept = [_recorded(r, int(round(secs * r["rate_hz"]))) for r in runs]
+    secs, rt_runs, floors, idle = composed_realtime.measure(smoke, tmp, base + 15,
+                                                            min(rt_s, 20.0),
+                                                            timer_floor.measure, held)
+    kept = [_recorded(r, int(round(secs * r["rate_hz"]))) for r in rt_runs]
     short = [k for k in kept if not k.endswith("none lost")]
     rows += composed_realtime.rows(
-        secs, runs, floors, idle, "; ".join(short) if short else
-        f"every stream message published was recorded, in {len(runs)} of {len(runs)} runs",
+        secs, rt_runs, floors, idle, "; ".join(short) if short else
+        f"every stream message published was recorded, in {len(rt_runs)} of {len(rt_runs)} runs",
         held, _realtime_rows)
     rows.append(_demo_row(smoke, tmp))
     return rows

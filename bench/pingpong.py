@@ -45,10 +45,12 @@ def echo(executor: str) -> None:
     if executor == "hot":
         import threading
 
+        from rclpy.qos import QoSProfile
+
         from dcsms_ros.ros.hotpath import HotPath
 
         hot = HotPath(node, threading.Lock())
-        hot.subscribe(TwistStamped, PING, pub.publish, 1)
+        hot.subscribe(TwistStamped, PING, pub.publish, QoSProfile(depth=1))
         hot.start()
         executor = "single"  # parameter services etc. stay on the default executor
         import atexit

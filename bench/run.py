@@ -103,9 +103,10 @@ def machine() -> dict[str, Any]:
                 break
     except OSError:
         pass
-    info = {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
-            "numpy": numpy.__version__, "platform": platform.platform(),
-            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    info: dict[str, Any] = {
+        "cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
+        "numpy": numpy.__version__, "platform": platform.platform(),
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
     from importlib.metadata import PackageNotFoundError, version
 
     for mod in ("numba", "scipy", "rosbags"):
@@ -190,7 +191,8 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         print(f"updated {a.readme} from {a.out}")
         return 0
-    benches = {**REGISTRY, "graph": functools.partial(_graph, rt_seconds=a.rt_seconds)}
+    benches: dict[str, Callable[[bool, Path], list[Row]]] = {
+        **REGISTRY, "graph": functools.partial(_graph, rt_seconds=a.rt_seconds)}
     rows: list[Row] = []
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="dcsms-bench-") as tmp:
