@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from dcsms_ros.core import compiledsos, fastsim
+from dcsms_ros.core import fastsim
 from dcsms_ros.core.checkpoints import CheckpointFeed
 from dcsms_ros.core.config import SystemConfig
 from dcsms_ros.core.controllers import make_controller
@@ -24,6 +24,7 @@ from dcsms_ros.core.delayline import DelayLines
 from dcsms_ros.core.modes import ControllerId, Mode, controller_ids, enabled_controllers
 from dcsms_ros.core.simresult import SimResult
 from dcsms_ros.core.simulator import PlantSimulator, check_plant
+from dcsms_ros.core.sosfilter import BlockFilter
 from dcsms_ros.core.supervision import make_supervisor
 from dcsms_ros.core.supervisor import State, Supervisor
 from dcsms_ros.core.trip import Trip, TripChecker
@@ -119,7 +120,7 @@ class Simulation:
             fast = fastsim.available()
         self.fast = bool(fast and fastsim.available() and not any((delay or {}).values()))
         # the same numbers from either filter: the fast path's compiled one, or scipy's
-        block = fastsim.sosfilt if self.fast else compiledsos.sosfilt
+        block = fastsim.sosfilt if self.fast else _scipy_sosfilt()
         self._feed = CheckpointFeed(cfg, block) if self.supervisor is not None else None
         n = cfg.plant.num_stages
         if plant is not None:
@@ -368,3 +369,11 @@ def _rows(out: tuple[Array, ...], i0: int, i1: int) -> tuple[Array, ...]:
     """Rows i0..i1-1 of the output arrays (the wrench array is (nc, K, dof))."""
     truth, raw, vel, wrench, applied = out
     return (truth[i0:i1], raw[i0:i1], vel[i0:i1], wrench[:, i0:i1], applied[i0:i1])
+
+
+def _scipy_sosfilt() -> BlockFilter:
+    """scipy's block filter for the object path, imported only then: ``scipy.signal`` took
+    0.65 s of every ``dcsms sim`` start-up whose fast path never used it (docs/performance.md)."""
+    from dcsms_ros.core import compiledsos  # noqa: PLC0415 - scipy.signal: the object path only
+
+    return compiledsos.sosfilt
