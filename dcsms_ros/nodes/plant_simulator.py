@@ -270,8 +270,11 @@ class PlantSimulatorNode(GraphNode, Hosted):
         for _ in range(self.pacer.due(now, self.sim.k)):
             k = self.sim.k
             self.io.publish_sample(k)
-            # the force of sample k - 1 is the newest one that can be here: older is delayed
-            wrenches, newly = self.held.take(now, self.io.published_s(k - 1))
+            # forces are aged at sample k's publication, on the clock of the times they count
+            # from (a burst's wake-up, ``now``, is older than its later samples: a preempted
+            # burst then took old answers as fresh); the force of sample k - 1 is the newest
+            # that can be here, older is delayed
+            wrenches, newly = self.held.take(self.io.published_s(k), self.io.published_s(k - 1))
             for c in newly:
                 self.io.went_stale(c)
             self._advance(wrenches)

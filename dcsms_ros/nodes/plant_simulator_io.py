@@ -40,6 +40,7 @@ from dcsms_ros.cdr import (
 from dcsms_ros.core import topics
 from dcsms_ros.core.simulator import PlantSimulator
 from dcsms_ros.protocols.barrier import LockstepBarrier
+from dcsms_ros.protocols.pacer import Publications
 from dcsms_ros.protocols.runstats import LatencyHistogram
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.connectivity import (
@@ -58,7 +59,7 @@ from dcsms_ros.ros.reports import Reports, Status
 
 #: Seconds the handshake waits after the graph looks connected, so DDS endpoints match too.
 SETTLE_S = 0.2
-#: Publication times of the newest samples kept for the latency of late forces (a power of 2).
+#: Publication times of the newest samples kept for the latency and age of late forces.
 RING = 256
 
 
@@ -114,7 +115,7 @@ class PlantIO:
         self._wall_to_mono = time.monotonic_ns() - time.time_ns()
         self._t_pub: list[int] = []  # timing_file: monotonic ns of each sample's publication
         self._lat: dict[str, list[int]] = {c: [] for c in node.controllers}
-        self._ring = [0] * RING  # monotonic ns of sample k's publication at k % RING
+        self._pubs = Publications(sim.cfg.plant.rate_hz, RING)
         self._timing = bool(opts.timing_file)
         self.latency_hist = LatencyHistogram()
         self._cpu = [0.0, 0.0]
@@ -180,7 +181,7 @@ class PlantIO:
         ns = sample_ns(k, self.sim.cfg.plant.rate_hz)
         self.ns = ns
         t_pub = time.monotonic_ns()
-        self._ring[k % RING] = t_pub
+        self._pubs.put(k, t_pub)
         if self._timing:
             self._t_pub.append(t_pub)
         truth = self.sim.truth().tolist()  # rows of floats: no row view or scalar per body
@@ -249,29 +250,29 @@ class PlantIO:
         reception or its publication on a lane; None: now). Records its control latency
         (sample publication -> force arrival) in :attr:`latency_hist`, and per force for
         benchmarks. Returns the monotonic ns the force counts from (real time): the publication
-        of the sample it answers, so its age is the delay it adds to the loop. Table1's stage-2
-        loop in DFBC+FFC has 93 deg of phase at its 14.6 Hz crossover, 17.7 ms of delay; one
-        process per node delivered forces up to 59 ms (p99) after their sample, and aged from
-        their arrival they were applied: the stages rang up to 19 mm/s until the supervisor
-        tripped. An answer to a sample older than the ring counts as never valid; one stamped
-        at or ahead of the next sample (not an answer of this loop) from its arrival. One
-        call a force (three a sample): the latency and the time it counts from share the
-        sample's index."""
+        of the sample it answers, or earlier after a catch-up burst
+        (:meth:`.Publications.answered`), so its age is the delay it adds to the loop.
+        Table1's stage-2 loop in DFBC+FFC has 93 deg of phase at its 14.6 Hz crossover, 17.7
+        ms of delay; one process per node delivered forces up to 59 ms (p99) after their
+        sample, and aged from their arrival they were applied: the stages rang up to 19 mm/s
+        until the supervisor tripped. An answer to a sample older than the ring counts as
+        never valid; one stamped ahead of the newest sample published (not an answer of this
+        loop) from its arrival. One call a force (three a sample): the latency and the time it
+        counts from share the sample's index."""
         now_ns = time.monotonic_ns() if wall_ns is None else wall_ns + self._wall_to_mono
         k = round(stamp * self.sim.cfg.plant.rate_hz / 1e9)
-        age = self.sim.k - k
-        if 0 <= age < RING:  # older answers: their publication time is gone
-            self.latency_hist.add((now_ns - self._ring[k % RING]) * 1e-9)
+        t_pub, valid_ns = self._pubs.answered(k, now_ns)
+        if t_pub is not None:  # older answers: their publication time is gone
+            self.latency_hist.add((now_ns - t_pub) * 1e-9)
         if self._timing and 0 <= k < len(self._t_pub):
             self._lat[cid].append(now_ns - self._t_pub[k])
-        if age <= 0:  # not published yet: not an answer of this graph's loop
-            return now_ns
-        return self._ring[k % RING] if age < RING else -(2**62)
+        return valid_ns
 
     def published_s(self, k: int) -> float:
         """Monotonic s of sample ``k``'s publication (the unit and value :meth:`arrived`
         gives its answers, in s); -inf before sample 0."""
-        return self._ring[k % RING] * 1e-9 if k >= 0 else -math.inf
+        t_pub = self._pubs.at_ns(k)
+        return -math.inf if t_pub is None else t_pub * 1e-9
 
     def missed(self, missing: list[str], absent: list[str], barrier: LockstepBarrier) -> None:
         """Log a lockstep timeout."""

@@ -122,6 +122,61 @@ class HeldInputs:
         return out, newly
 
 
+class Publications:
+    """When each of the last ``size`` samples went out, and the time an answer to one counts
+    from.
+
+    An answer counts from its sample's publication, so its age is the delay it adds to the
+    loop, and never from later than that sample would have gone out on the newest one's
+    schedule. The two agree while the plant keeps its schedule; they part in a catch-up burst
+    (:class:`Pacer`), which publishes up to ``MAX_BURST`` samples within microseconds. Aged
+    from publication alone, an answer to a sample 40 periods (20 ms, twice the timeout) older
+    than the newest was applied after two such bursts: the simulated stages saw a 20 ms loop
+    delay (``test_force_age`` failed so in CI, stop 65).
+
+    Parameters
+    ----------
+    rate_hz : float
+        Sample rate, Hz.
+    size : int
+        Samples remembered; an answer to an older one counts as never valid.
+    """
+
+    #: The time an answer to a sample too old to remember counts from, ns.
+    NEVER_NS = -(2**62)
+
+    def __init__(self, rate_hz: float, size: int = 256) -> None:
+        self.period_ns = round(1e9 / rate_hz)
+        self.size = size
+        self._t = [0] * size
+        #: index of the newest sample published (-1 before the first)
+        self.newest = -1
+
+    def put(self, k: int, t_ns: int) -> None:
+        """Sample ``k`` went out at ``t_ns`` (monotonic ns)."""
+        self._t[k % self.size] = t_ns
+        self.newest = k
+
+    def at_ns(self, k: int) -> int | None:
+        """Monotonic ns of sample ``k``'s publication; None if not published or forgotten."""
+        return self._t[k % self.size] if 0 <= self.newest - k < self.size and k >= 0 else None
+
+    def answered(self, k: int, now_ns: int) -> tuple[int | None, int]:
+        """An answer to sample ``k`` arrived at ``now_ns``: its sample's publication (None if
+        not published or forgotten) and the monotonic ns the answer counts from, the earlier
+        of that publication and the newest's less the periods between them (``now_ns`` for a
+        sample not published yet, not an answer of this loop; :attr:`NEVER_NS` for one
+        forgotten). One call a force, three a sample."""
+        age = self.newest - k
+        if age < 0:
+            return None, now_ns
+        if age >= self.size or k < 0:
+            return None, self.NEVER_NS
+        t = self._t
+        t_k = t[k % self.size]
+        return t_k, min(t_k, t[self.newest % self.size] - age * self.period_ns)
+
+
 class Watchdog:
     """A controller's input watchdog: stale when nothing arrived for ``timeout_s``.
 
@@ -179,4 +234,4 @@ class Watchdog:
         return max(self._repeat_at - now, 0.0) if self.stale else 0.0
 
 
-__all__ = ["MAX_BURST", "HeldInputs", "Pacer", "Watchdog"]
+__all__ = ["MAX_BURST", "HeldInputs", "Pacer", "Publications", "Watchdog"]

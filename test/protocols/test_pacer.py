@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from dcsms_ros.protocols.pacer import HeldInputs, Pacer, Watchdog
+from dcsms_ros.protocols.pacer import HeldInputs, Pacer, Publications, Watchdog
 
 
 def test_deadlines_and_a_dropped_backlog() -> None:
@@ -101,6 +101,65 @@ def test_a_fresh_answer_to_an_older_sample_than_due_counts_as_delayed() -> None:
     assert h.delayed_samples == {"a": 0, "b": 1}
     assert h.take(0.0125, due=0.011)[0] == {"a": 0.0, "b": 0.0}  # both stale at step 12
     assert h.delayed_samples == {"a": 0, "b": 1} and h.stale_samples == {"a": 1, "b": 1}
+
+
+def test_an_answer_counts_from_its_publication_on_schedule() -> None:
+    """At 2 kHz on schedule (20 us of jitter) an answer counts from its sample's publication;
+    one to a sample not yet published from its arrival, one forgotten never."""
+    pubs = Publications(2000.0, size=256)
+    assert pubs.answered(0, 7) == (None, 7)
+    jitter = np.random.default_rng(3).uniform(0, 20_000, 300).astype(int)
+    for k in range(300):
+        pubs.put(k, 1_000_000_000 + k * 500_000 + int(jitter[k]))
+    for k in (299, 250, 100):  # the newest, and older ones the newest's jitter does not move
+        t_k = 1_000_000_000 + k * 500_000 + int(jitter[k])
+        want = min(t_k, 1_000_000_000 + 299 * 500_000 + int(jitter[299]) - (299 - k) * 500_000)
+        assert pubs.answered(k, 2**40) == (t_k, want) and abs(want - t_k) <= 20_000
+        assert pubs.at_ns(k) == t_k
+    assert pubs.answered(300, 5) == (None, 5)
+    assert pubs.answered(43, 5) == (None, Publications.NEVER_NS) and pubs.at_ns(43) is None
+
+
+def _answers_applied_late(seed: int, by_publication: bool) -> tuple[int, int]:
+    """A 2 kHz plant that wakes late (0.3 ms mean, 9 ms one time in 50) and is preempted for
+    up to 9 ms before 5 % of its publications; after each wake-up the controller answers the
+    newest sample less 40 (20 ms, twice the 10 ms timeout). Returns the samples that took
+    that answer as fresh, and the samples taken, aging it from ``answered``'s time or, if
+    ``by_publication``, from its sample's publication alone."""
+    rng = np.random.default_rng(seed)
+    rate, lag = 2000.0, 40
+    pacer, pubs = Pacer(rate), Publications(rate)
+    held = HeldInputs(["fb"], timeout_s=0.01, zero=0.0)
+    t, k, fresh, taken = 0.0, 0, 0, 0
+    while t < 2.0:
+        due_t = pacer.t0 + k / rate if pacer.started else t
+        t = max(t, due_t) + rng.exponential(0.3e-3) * (30 if rng.random() < 0.02 else 1)
+        for _ in range(pacer.due(t, k)):
+            if rng.random() < 0.05:
+                t += rng.uniform(0.0, 0.009)
+            pubs.put(k, int(t * 1e9))
+            vals, _ = held.take(t)
+            if k > 2 * lag:
+                taken += 1
+                fresh += vals["fb"] != 0.0
+            k += 1
+            t += 20e-6
+        if k > lag:
+            t_pub, valid = pubs.answered(k - 1 - lag, int(t * 1e9))
+            assert t_pub is not None and valid <= t_pub
+            held.put("fb", 1.0, (t_pub if by_publication else valid) * 1e-9)
+    return fresh, taken
+
+
+def test_an_old_answer_is_stale_however_the_plant_catches_up() -> None:
+    """An answer 40 samples older than the newest is never applied, whatever the bursts and
+    preemptions. Aged from its sample's publication alone it was, in samples published late in
+    a burst (CI, stop 65: 0.4 % of a phase of such answers applied): this test fails on that."""
+    runs = [_answers_applied_late(seed, by_publication=False) for seed in range(5)]
+    old = [_answers_applied_late(seed, by_publication=True) for seed in range(5)]
+    assert all(taken > 3000 for _, taken in runs)
+    assert [fresh for fresh, _ in runs] == [0] * 5
+    assert sum(fresh for fresh, _ in old) > 0
 
 
 def test_watchdog() -> None:
