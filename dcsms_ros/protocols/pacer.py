@@ -128,11 +128,13 @@ class Publications:
 
     An answer counts from its sample's publication, so its age is the delay it adds to the
     loop, and never from later than that sample would have gone out on the newest one's
-    schedule. The two agree while the plant keeps its schedule; they part in a catch-up burst
-    (:class:`Pacer`), which publishes up to ``MAX_BURST`` samples within microseconds. Aged
-    from publication alone, an answer to a sample 40 periods (20 ms, twice the timeout) older
-    than the newest was applied after two such bursts: the simulated stages saw a 20 ms loop
-    delay (``test_force_age`` failed so in CI, stop 65).
+    schedule. The two agree while the plant keeps its schedule. They part when samples go out
+    closer together than their period: a catch-up burst (:class:`Pacer`) publishes up to
+    ``MAX_BURST`` at once, and a thread preempted inside one records its later samples'
+    publications milliseconds after the burst woke. Aged from publication alone, an answer to
+    a sample 40 periods (20 ms, twice the timeout) older than the newest was then applied, and
+    the simulated stages saw a 20 ms loop delay (``test_force_age`` in CI, stop 65; the seeded
+    model in ``test/protocols/test_pacer.py``).
 
     Parameters
     ----------
