@@ -93,7 +93,9 @@ def run(smoke: bool, tmp: Path, rt_seconds: float | None = None) -> list[Row]:
             "note": f"real-time factor {rate[hot] / 2000.0:.2f}x at 2 kHz; step p50 "
                     f"{np.percentile(np.diff(r['t']), 50) * 1e6:.0f} us; sample->force p50 "
                     f"{np.percentile(lat, 50) * 1e6:.0f} us; CPU {cpu}"
-                    + (f"; {LOCKSTEP_PP_WHY}" if hot and rate[hot] < 2000.0 else "")})
+                    + (f"; {LOCKSTEP_PP_WHY}" if hot and rate[hot] < 2000.0 else "")
+                    + (f"; {_ratio_why(rate[hot], b, r['cpu'])}"
+                       if hot and rate[hot] < 0.6 * b else "")})
     if not smoke:
         # the same, control path under SCHED_FIFO (`dcsms up --rt-priority 50`): lockstep is
         # latency-bound, and a woken real-time thread runs at once
@@ -139,6 +141,20 @@ LOCKSTEP_PP_WHY = ("NOT met: each lockstep step waits for three hops in sequence
                    "each a wake-up in another process (the relay row: its CPU alone; "
                    "docs/performance.md); the composed graph is the lockstep deployment for "
                    "speed (its rows)")
+
+
+def _ratio_why(steps_per_s: float, bound: float, cpu: dict[str, float]) -> str:
+    """Why a lockstep rate is below 0.6 of the ping-pong bound, from this run's figures."""
+    hops_us = 1.5e6 / bound  # three messages in series, where a round trip is two
+    work = ", ".join(f"{n} {cpu[n] / steps_per_s * 1e6:.0f} us"
+                     for n in ("plant_simulator", "sensor_decoupling") if n in cpu)
+    return (f"below 0.6 of the bound: a step is three messages in series where a round trip "
+            f"is two, so with an echo's work it would reach 0.67 of the bound; at the "
+            f"ping-pong's pace the hops take {hops_us:.0f} us of the {1e6 / steps_per_s:.0f} "
+            f"us step, the rest is what the plant and the decoupling do above an echo (their "
+            f"CPU a step, wake-ups included: {work})")
+
+
 MISS_WHY = ("the jitter of the plant's publication period; a late period is caught up within "
             "20 samples, so it is not a late sample (issue 21 counts late + stale: "
             "docs/performance.md)")
