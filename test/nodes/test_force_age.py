@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 import rclpy
 from geometry_msgs.msg import WrenchStamped
 from node_helpers import executor_for, overrides, spin_until
@@ -15,6 +16,7 @@ from sensor_msgs.msg import JointState
 from dcsms_ros.core import topics
 from dcsms_ros.nodes.plant_simulator import PlantSimulatorNode
 from dcsms_ros.ros import qos
+from dcsms_ros.ros.msgs import sample_ns
 
 FORCE_N = 5.0
 
@@ -86,3 +88,27 @@ def test_a_force_answering_an_old_sample_is_zero_a_fresh_one_is_applied(ctx, cfg
     start = late[0][0]
     settled = [f for ns, f in late if ns > start + max(0.2, 10 * timeout_s) * 1e9]
     assert settled and max(abs(f) for f in settled) == 0.0, settled[:20]
+
+
+def test_an_answer_to_a_sample_of_a_burst_counts_from_the_schedule(ctx, cfg):
+    """The plant's own wiring of :class:`~dcsms_ros.protocols.pacer.Publications`: after 41
+    samples published back to back (a burst: 40 periods, 20 ms, within microseconds), an
+    answer to the first counts from 40 periods before the newest's publication, so it is
+    stale at once; an answer to the newest counts from its publication. Aged from its
+    sample's publication alone (the rule before), the first counted as fresh: this test
+    fails on that code."""
+    rate = cfg.plant.rate_hz
+    plant = PlantSimulatorNode(context=ctx, parameter_overrides=overrides(
+        cfg, schedule="realtime", handshake_timeout_s=0.3, duration_s=0.0))
+    try:
+        plant.hot.stop()  # no loop: this thread publishes the burst
+        for k in range(41):
+            plant.io.publish_sample(k)
+        first, newest = plant.io.published_s(0), plant.io.published_s(40)
+        valid_first = plant.io.arrived("fb_stage1", sample_ns(0, rate)) * 1e-9
+        # a burst goes out in ~2 ms (more only if this thread is preempted for ~20 ms)
+        assert valid_first == pytest.approx(min(first, newest - 40 / rate), abs=1e-9)
+        assert newest - valid_first > cfg.control.input_timeout_s
+        assert plant.io.arrived("fb_stage1", sample_ns(40, rate)) * 1e-9 == newest
+    finally:
+        plant.destroy_node()
