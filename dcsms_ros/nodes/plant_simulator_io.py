@@ -59,8 +59,6 @@ from dcsms_ros.ros.reports import Reports, Status
 
 #: Seconds the handshake waits after the graph looks connected, so DDS endpoints match too.
 SETTLE_S = 0.2
-#: Publication times of the newest samples kept for the latency and age of late forces.
-RING = 256
 
 
 class PlantIO:
@@ -115,7 +113,7 @@ class PlantIO:
         self._wall_to_mono = time.monotonic_ns() - time.time_ns()
         self._t_pub: list[int] = []  # timing_file: monotonic ns of each sample's publication
         self._lat: dict[str, list[int]] = {c: [] for c in node.controllers}
-        self._pubs = Publications(sim.cfg.plant.rate_hz, RING)
+        self._pubs = Publications(sim.cfg.plant.rate_hz)
         self._timing = bool(opts.timing_file)
         self.latency_hist = LatencyHistogram()
         self._cpu = [0.0, 0.0]
@@ -255,10 +253,10 @@ class PlantIO:
         Table1's stage-2 loop in DFBC+FFC has 93 deg of phase at its 14.6 Hz crossover, 17.7
         ms of delay; one process per node delivered forces up to 59 ms (p99) after their
         sample, and aged from their arrival they were applied: the stages rang up to 19 mm/s
-        until the supervisor tripped. An answer to a sample older than the ring counts as
-        never valid; one stamped ahead of the newest sample published (not an answer of this
-        loop) from its arrival. One call a force (three a sample): the latency and the time it
-        counts from share the sample's index."""
+        until the supervisor tripped. An answer to a sample older than the publications kept
+        counts as never valid; one stamped ahead of the newest sample published (not an answer
+        of this loop) from its arrival. One call a force (three a sample): the latency and the
+        time it counts from share the sample's index."""
         now_ns = time.monotonic_ns() if wall_ns is None else wall_ns + self._wall_to_mono
         k = round(stamp * self.sim.cfg.plant.rate_hz / 1e9)
         t_pub, valid_ns = self._pubs.answered(k, now_ns)
