@@ -135,6 +135,7 @@ class PlantSimulatorNode(GraphNode, Hosted):
         # only timeouts are mutable here: the plant and its disturbances are fixed at start
         self.barrier.timeout_s = cfg.control.lockstep_timeout_s
         self.held.timeout_s = cfg.control.input_timeout_s
+        self.io.keep_answers_for(cfg.control.input_timeout_s)
 
     def _set_hold(self, hold_at_s: float) -> None:
         self.barrier.hold = int(round(hold_at_s * self.rate)) if hold_at_s > 0 else None

@@ -114,6 +114,7 @@ class PlantIO:
         self._t_pub: list[int] = []  # timing_file: monotonic ns of each sample's publication
         self._lat: dict[str, list[int]] = {c: [] for c in node.controllers}
         self._pubs = Publications(sim.cfg.plant.rate_hz)
+        self.keep_answers_for(sim.cfg.control.input_timeout_s)
         self._timing = bool(opts.timing_file)
         self.latency_hist = LatencyHistogram()
         self._cpu = [0.0, 0.0]
@@ -265,6 +266,11 @@ class PlantIO:
         if self._timing and 0 <= k < len(self._t_pub):
             self._lat[cid].append(now_ns - self._t_pub[k])
         return valid_ns
+
+    def keep_answers_for(self, timeout_s: float) -> None:
+        """Remember the publications an answer up to ``timeout_s`` old (the input timeout,
+        s) needs to be aged (:meth:`.Publications.cover`)."""
+        self._pubs.cover(timeout_s)
 
     def published_s(self, k: int) -> float:
         """Monotonic s of sample ``k``'s publication (the unit and value :meth:`arrived`

@@ -141,9 +141,9 @@ class Publications:
     rate_hz : float
         Sample rate, Hz.
     size : int
-        Samples remembered; an answer to an older one counts as never valid (256: 128 ms at
-        2 kHz, 13x the default 10 ms timeout; a timeout set longer than ``size`` periods is
-        cut to them).
+        Samples remembered at least; an answer to an older one counts as never valid (256:
+        128 ms at 2 kHz, 13x the default 10 ms timeout). :meth:`cover` keeps more for a
+        longer timeout.
     """
 
     #: The time an answer to a sample too old to remember counts from, ns.
@@ -155,6 +155,19 @@ class Publications:
         self._t = [0] * size
         #: index of the newest sample published (-1 before the first)
         self.newest = -1
+
+    def cover(self, span_s: float) -> None:
+        """Remember the samples of the last ``span_s`` (an input timeout, s) and a catch-up
+        burst more, keeping what is remembered: an answer younger than the timeout is then
+        never counted as forgotten (with 256 samples, a 0.5 s timeout at 2 kHz was cut to
+        128 ms). Call it with the node's other state (not beside :meth:`put`)."""
+        need = math.ceil(span_s * 1e9 / self.period_ns) + MAX_BURST + 1
+        if need <= self.size:
+            return
+        t = [0] * need
+        for k in range(max(self.newest - self.size + 1, 0), self.newest + 1):
+            t[k % need] = self._t[k % self.size]
+        self._t, self.size = t, need
 
     def put(self, k: int, t_ns: int) -> None:
         """Sample ``k`` went out at ``t_ns`` (monotonic ns)."""

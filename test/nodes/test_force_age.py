@@ -10,11 +10,13 @@ import pytest
 import rclpy
 from geometry_msgs.msg import WrenchStamped
 from node_helpers import executor_for, overrides, spin_until
+from rclpy.parameter import Parameter
 from rosmsgs import stamp_ns
 from sensor_msgs.msg import JointState
 
 from dcsms_ros.core import topics
 from dcsms_ros.nodes.plant_simulator import PlantSimulatorNode
+from dcsms_ros.protocols.pacer import Publications
 from dcsms_ros.ros import qos
 from dcsms_ros.ros.msgs import sample_ns
 
@@ -110,5 +112,29 @@ def test_an_answer_to_a_sample_of_a_burst_counts_from_the_schedule(ctx, cfg):
         assert valid_first == pytest.approx(min(first, newest - 40 / rate), abs=1e-9)
         assert newest - valid_first > cfg.control.input_timeout_s
         assert plant.io.arrived("fb_stage1", sample_ns(40, rate)) * 1e-9 == newest
+    finally:
+        plant.destroy_node()
+
+
+def test_a_longer_input_timeout_set_at_run_time_is_kept_whole(ctx, cfg):
+    """``control.input_timeout_s`` set to 0.5 s on a running plant (``ros2 param set``): an
+    answer to a sample 399 periods (~0.2 s) older than the newest still counts from its
+    schedule, within the timeout, and an answer 1,021 or more older is forgotten. The
+    plant remembered 256 samples whatever the timeout (128 ms at 2 kHz): the first answer
+    counted as never valid, and this test failed on that code."""
+    rate = cfg.plant.rate_hz
+    plant = PlantSimulatorNode(context=ctx, parameter_overrides=overrides(
+        cfg, schedule="realtime", handshake_timeout_s=0.3, duration_s=0.0))
+    try:
+        plant.hot.stop()  # no loop: this thread publishes
+        got = plant.set_parameters([Parameter("control.input_timeout_s", value=0.5)])
+        assert got[0].successful and plant.held.timeout_s == 0.5
+        for k in range(1100):
+            plant.io.publish_sample(k)
+        first, newest = plant.io.published_s(700), plant.io.published_s(1099)
+        valid = plant.io.arrived("fb_stage1", sample_ns(700, rate)) * 1e-9
+        assert valid == pytest.approx(min(first, newest - 399 / rate), abs=1e-9)
+        assert newest - valid < 0.5  # within the timeout it allows: applied if on time
+        assert plant.io.arrived("fb_stage1", sample_ns(0, rate)) == Publications.NEVER_NS
     finally:
         plant.destroy_node()

@@ -120,6 +120,23 @@ def test_an_answer_counts_from_its_publication_on_schedule() -> None:
     assert pubs.answered(43, 5) == (None, Publications.NEVER_NS) and pubs.at_ns(43) is None
 
 
+@pytest.mark.parametrize("timeout_s, kept", [(0.01, 256), (0.5, 1021)])
+def test_a_longer_timeout_keeps_every_answer_it_allows(timeout_s: float, kept: int) -> None:
+    """Covering a 0.5 s timeout at 2 kHz (after 300 samples, keeping what was remembered): an
+    answer 999 samples (0.4995 s) old still counts from its publication, where 256 samples
+    forgot it; the default 10 ms timeout keeps 256."""
+    pubs = Publications(2000.0)
+    for k in range(300):
+        pubs.put(k, 10**9 + k * 500_000)
+    pubs.cover(timeout_s)
+    assert pubs.size == kept
+    assert [pubs.at_ns(k) for k in (299, 44)] == [10**9 + 299 * 500_000, 10**9 + 44 * 500_000]
+    for k in range(300, 1300):
+        pubs.put(k, 10**9 + k * 500_000)
+    old = pubs.answered(1299 - 999, 2**40)
+    assert (old[0] is not None) == (timeout_s > 0.1)
+
+
 def _answers_applied_late(seed: int, by_publication: bool) -> tuple[int, int]:
     """A 2 kHz plant that wakes late (0.3 ms mean, 9 ms one time in 50) and is preempted for
     up to 9 ms before 5 % of its publications; after each wake-up the controller answers the
