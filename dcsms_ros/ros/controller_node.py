@@ -193,12 +193,16 @@ class ControllerNode(GraphNode, Hosted):
             cap = round(self.watchdog.timeout_s * self.rate) if self.loop.enabled else 100_000
             for _ in range(skipped(last, ns, self.rate, cap)):
                 self.loop.fader.step()
-        now_ns = time.monotonic_ns()
-        if self.watchdog.feed(now_ns * 1e-9):
-            self._log_back(lambda: f"{self.cid}: input is back")
-        if not self._linked and self._reaches_actuators(ns):
-            self._linked = True
-            self.loop.prime(x)  # joining a running plant: no filter start-up transient
+        # real time only: in lockstep the plant's own timeout covers a silent input, and the
+        # loop is linked from the start (a watchdog fed for nothing was ~1 % of a step)
+        now_ns = -1
+        if not self.lockstep:
+            now_ns = time.monotonic_ns()
+            if self.watchdog.feed(now_ns * 1e-9):
+                self._log_back(lambda: f"{self.cid}: input is back")
+            if not self._linked and self._reaches_actuators(ns):
+                self._linked = True
+                self.loop.prime(x)  # joining a running plant: no filter start-up transient
         w = self.loop.step_floats(x) if self._linked else self._zero
         if not all(map(math.isfinite, w)):  # a NaN must never reach an actuator
             self.nonfinite_out += 1

@@ -104,10 +104,12 @@ class BusPublisher(_Wrapped):
         return int(self._ask())
 
     def wanted(self) -> bool:
-        """True while a DDS reader (this process's own included) is matched, as
-        :meth:`remote` knows it: a writer of an optional topic (the plant's truth) publishes
-        only then (the plant asks per sample and stream)."""
-        return self._matched() > 0
+        """True while an endpoint of this process takes the topic (a subscriber or an
+        observer on the bus) or a DDS reader is matched, as :meth:`remote` knows it: a writer
+        of an optional topic (the plant's truth) publishes only then (the plant asks per
+        sample and stream)."""
+        t = self.writer.topic
+        return bool(t.handlers or t.inboxes or t.observers) or self._matched() > 0
 
     def remote(self) -> bool:
         """True while a reader outside this process is matched."""
@@ -117,7 +119,11 @@ class BusPublisher(_Wrapped):
         """Hand ``data`` (serialized) to the in-process subscribers, and to DDS when a remote
         reader is matched or the writer keeps a history."""
         self.writer.publish(data)
-        if self.remote():
+        m = self._matched  # :meth:`remote` without its two calls while the count is fresh
+        now = time.monotonic_ns()
+        if now >= m.due:
+            m.refresh(now)
+        if self.writer.remote(m.n):
             if self.held:  # the first remote reader: the history it would have had first
                 for old in self.held.release():
                     self.pub.publish(old)
