@@ -194,7 +194,7 @@ class ControllerNode(GraphNode, Hosted):
             for _ in range(skipped(last, ns, self.rate, cap)):
                 self.loop.fader.step()
         # real time only: in lockstep the plant's own timeout covers a silent input, and the
-        # loop is linked from the start (a watchdog fed for nothing was ~1 % of a step)
+        # loop is linked from the start
         now_ns = -1
         if not self.lockstep:
             now_ns = time.monotonic_ns()
