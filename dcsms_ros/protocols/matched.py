@@ -42,24 +42,16 @@ class MatchCount:
                  refresh_ns: int = MATCH_REFRESH_NS) -> None:
         self._ask, self._clock = ask, clock
         self.refresh_ns = int(refresh_ns)
-        #: The count last asked (valid while the clock is below :attr:`due`).
-        self.n = 0
-        #: Clock ns from which :attr:`n` is asked again.
-        self.due = -1
+        self._n = 0
+        self._due = -1
 
     def __call__(self) -> int:
         """The count, at most :attr:`refresh_ns` old."""
         now = self._clock()
-        if now >= self.due:
-            self.refresh(now)
-        return self.n
-
-    def refresh(self, now_ns: int) -> None:
-        """Ask the count now (``now_ns``: the clock's reading). A per-message caller compares
-        its clock with :attr:`due` itself and reads :attr:`n`: no call while the count is
-        fresh (the composed publishers, ten publications a sample)."""
-        self.n = int(self._ask())
-        self.due = now_ns + self.refresh_ns
+        if now >= self._due:
+            self._n = int(self._ask())
+            self._due = now + self.refresh_ns
+        return self._n
 
 
 class HeldHistory:

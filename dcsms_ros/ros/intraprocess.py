@@ -119,11 +119,7 @@ class BusPublisher(_Wrapped):
         """Hand ``data`` (serialized) to the in-process subscribers, and to DDS when a remote
         reader is matched or the writer keeps a history."""
         self.writer.publish(data)
-        m = self._matched  # :meth:`remote` without its two calls while the count is fresh
-        now = time.monotonic_ns()
-        if now >= m.due:
-            m.refresh(now)
-        if self.writer.remote(m.n):
+        if self.remote():
             if self.held:  # the first remote reader: the history it would have had first
                 for old in self.held.release():
                     self.pub.publish(old)
