@@ -33,6 +33,16 @@ def _cpu_ticks(pid: int, tid: int | None = None) -> int | None:
     return int(fields[11]) + int(fields[12])  # utime + stime (fields 14, 15)
 
 
+def _bag_writer(pid: int) -> int | None:
+    """The pid of the bag writer process a composed recorded graph ``pid`` started
+    (:mod:`dcsms_ros.analysis.bagprocess`), if any: its CPU is the recording's too."""
+    try:
+        kids = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return None
+    return int(kids[0]) if kids else None
+
+
 def _fifo_thread(pid: int) -> int | None:
     """The kernel id of the process's SCHED_FIFO thread (composed: the driver), if any."""
     try:
@@ -123,6 +133,8 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
         t_cpu0 = 0.0
         host0 = None
         driver: int | None = None  # composed under SCHED_FIFO: its driver thread's CPU
+        writer: int | None = None
+        wrote: list[tuple[float, int]] = []  # the bag writer's (time, ticks): first, latest
         drv: list[tuple[float, int]] = []  # (time, ticks): the first and the latest
         while plant.proc.poll() is None and time.monotonic() < deadline:
             if not cpu0 and "graph connected" in plant.log.read_text(errors="replace"):
@@ -130,10 +142,14 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
                 host0 = read_cpu_times()
                 cpu0 = {k.name: _cpu_ticks(k.proc.pid) for k in kids + rec
                         if k.proc is not None}
+                writer = _bag_writer(plant.proc.pid) if composed and record else None
                 if on_running is not None:
                     on_running(kids)
                 if composed and rt_priority:
                     driver = _fifo_thread(plant.proc.pid)
+            if writer is not None and (ticks := _cpu_ticks(writer)) is not None:
+                now = (time.monotonic(), ticks)
+                wrote = [wrote[0] if wrote else now, now]
             if driver is not None:
                 ticks = _cpu_ticks(plant.proc.pid, driver)
                 if ticks is not None:
@@ -164,6 +180,8 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
     # the plant's process CPU over its run (composed: every node, the in-process recorder)
     cpu["composed" if composed else "plant_simulator"] = (
         (c1 - c0) / max(t[-1] - t[0], 1e-9) if c1 > c0 else float("nan"))
+    if wrote and wrote[1][0] > wrote[0][0]:
+        cpu["bag_writer"] = (wrote[1][1] - wrote[0][1]) / hz / (wrote[1][0] - wrote[0][0])
     if drv and drv[1][0] > drv[0][0]:
         cpu["driver"] = (drv[1][1] - drv[0][1]) / hz / (drv[1][0] - drv[0][0])
     lat = np.concatenate([z[k] for k in z.files if k.startswith("lat_ns_")]) * 1e-9

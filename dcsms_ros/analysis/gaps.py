@@ -28,7 +28,8 @@ from __future__ import annotations
 import json
 import statistics
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 #: An interval longer than this many median periods is a time gap.
 GAP_FACTOR = 1.5
@@ -128,6 +129,18 @@ class TopicStats:
             else:
                 self._check(prev, stamp_ns)
 
+    def lost_through(self, seq: int) -> None:
+        """The publisher's messages up to number ``seq`` were published but some never came
+        (a writer that dropped them, :mod:`.bagprocess`): those after the last one received
+        count as a gap, as the next message would have shown."""
+        if not self.checked:
+            return
+        last = self._last_seq or 0
+        if seq > last:
+            self.seq_gaps += 1
+            self.seq_missing += seq - last
+            self._last_seq = seq
+
     def set_publishers(self, n: int) -> None:
         """Update the publisher count: checks run only while it is at most 1; they restart
         from the next message when it drops back to 1 (e.g. a restarted node whose old
@@ -179,6 +192,20 @@ class TopicStats:
     def ok(self) -> bool:
         """No sequence gap, no time gap, no backwards stamp."""
         return not (self.seq_gaps or self.time_gaps or self.backwards)
+
+    def state(self) -> dict[str, Any]:
+        """Every counter, JSON-friendly, for :meth:`from_state` in another process (a bag
+        writer process's, :mod:`.bagserve`); not the ``publishers`` callable."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "publishers"}
+        out["examples"] = [list(e) for e in self.examples]
+        out["_warm"] = [list(w) for w in self._warm]
+        return out
+
+    @classmethod
+    def from_state(cls, state: Mapping[str, Any]) -> TopicStats:
+        """The counters :meth:`state` returned."""
+        pairs = {k: [(int(a), int(b)) for a, b in state.get(k, [])] for k in ("examples", "_warm")}
+        return cls(**{**state, **pairs})
 
     def as_dict(self) -> dict[str, object]:
         """The counters as a JSON-friendly dict."""

@@ -102,9 +102,10 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
         keeper = Housekeeper(executor)  # every node's periodic jobs on one timer
         try:
             if record:
+                lockstep = spec.schedule == "lockstep"
                 recorder = Recorder(record[0], list(record[1:]) or None, context=ctx,
-                                    queue_depth=LOCKSTEP_WRITER_DEPTH if spec.schedule ==
-                                    "lockstep" else None)
+                                    queue_depth=LOCKSTEP_WRITER_DEPTH if lockstep else None,
+                                    lossless=lockstep)
                 executor.add_node(recorder)
             nodes = create_nodes(spec, ctx)
             serials = [serialize(nd) for nd in nodes]  # before any callback can run

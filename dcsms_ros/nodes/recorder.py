@@ -12,8 +12,11 @@ them to :class:`~dcsms_ros.analysis.bagio.BagWriter` with the DDS receive time a
 topic written in the same process is taken from the process's bus instead
 (:mod:`dcsms_ros.protocols.localbus`): the bytes as published, every message (no DDS queue to
 overflow), its publication time as the bag time, on the driver thread after the control path;
-its DDS reader stays (the graph shows the recorder) but is never read. It only reads the
-header stamp of stamped types (:func:`dcsms_ros.cdr.read_stamp`) for the time-gap check
+its DDS reader stays (the graph shows the recorder) but is never read. Composed, the bag is
+written by a bag writer process (:mod:`dcsms_ros.analysis.bagprocess`): the driver thread
+only frames the bus's batches into its pipe, and that process writes them and counts the
+bus's topics (their counters join the others when the bag closes). The recorder only reads
+the header stamp of stamped types (:func:`dcsms_ros.cdr.read_stamp`) for the time-gap check
 (:mod:`dcsms_ros.analysis.gaps`).
 
 ``/clock`` is not recorded by default (default ``topics`` is ``/dcsms/*``): at 2 kHz it only
@@ -46,6 +49,7 @@ from typing import Any
 from rclpy.node import Node
 
 from dcsms_ros.analysis.bagio import BagWriter
+from dcsms_ros.analysis.bagprocess import ProcessBagWriter
 from dcsms_ros.analysis.gaps import PUBLISHED_KEY, Recording, TopicStats, published_json
 from dcsms_ros.analysis.mcapwrite import McapBagWriter
 from dcsms_ros.cdr import read_stamp
@@ -97,7 +101,7 @@ class Recorder(GraphNode):
     def __init__(self, out: str | None = None, topics: Sequence[str] | None = None,
                  storage: str | None = None, duration_s: float | None = None,
                  queue_depth: int | None = None, exclude: Sequence[str] | None = None,
-                 **kwargs: Any) -> None:
+                 lossless: bool = True, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = self.declare_parameter
         self.out = out or str(p("out", "dcsms_bag").value)
@@ -109,21 +113,27 @@ class Recorder(GraphNode):
         self.depth = int(queue_depth or p("queue_depth", DEFAULT_DEPTH).value)
         report_s = float(p("report_period_s", 10.0).value)
         discovery_s = float(p("discovery_period_s", 0.5).value)
-        # MCAP through the package's own writer: ~1.5 us per message where rosbags' took ~4-7
-        # chunks are compressed and written by this node's executor (FLUSH_PERIOD_S), never in
-        # a write: composed, writes run on the real-time driver thread
-        self.writer: BagWriter | McapBagWriter = (
-            McapBagWriter(self.out, defer_flush=True) if self.storage == "mcap"
-            else BagWriter(self.out, self.storage))
+        ctx = self.context
+        self.bus = ctx.bus if isinstance(ctx, DrivenContext) else None
+        # MCAP through the package's own writer: ~1.5 us per message where rosbags' took ~4-7.
+        # Composed, the bag is written by another process: the driver thread only frames the
+        # bus's batches into a pipe (analysis/bagprocess.py); alone, chunks are compressed and
+        # written by this node's executor (FLUSH_PERIOD_S), never in a write
+        self.writer: BagWriter | McapBagWriter | ProcessBagWriter
+        if self.bus is not None:
+            self.writer = ProcessBagWriter(self.out, self.storage, lossless)
+        elif self.storage == "mcap":
+            self.writer = McapBagWriter(self.out, defer_flush=True)
+        else:
+            self.writer = BagWriter(self.out, self.storage)
         self.stats: dict[str, TopicStats] = {}
         self._skipped: set[str] = set()
         self._subs: list[Any] = []
         # composed, the executor and the driver thread both write the bag (a thread-safe
-        # BagWriter); each topic's counters are written by one of them only
-        ctx = self.context
-        self.bus = ctx.bus if isinstance(ctx, DrivenContext) else None
+        # writer); the bus's topics are counted by the bag writer process
         #: the topics written in this process, taken from the bus in batches
         self._sink = Sink(self._write_batch)
+        self._from_bus = 0  # messages taken from the bus so far
         self._open = True
         self._t_start = time.monotonic()
         self._reported = (0, self._t_start, 0)
@@ -164,21 +174,27 @@ class Recorder(GraphNode):
         self.get_logger().warning(f"not recording {topic}: {why}")
 
     def _subscribe(self, topic: str, msgtype: str, offered: list[Any]) -> None:
+        local = self.bus is not None and self.bus.has_publisher(topic)
+        if isinstance(self.writer, ProcessBagWriter):
+            self.writer.wait_ready()  # the bag's own error (it exists) is not the topic's
         try:
             cls = msg_class(msgtype)
-            self.writer.add_topic(topic, msgtype, qos_yaml(offered))
+            stamped = is_stamped(cls, msgtype)
+            if isinstance(self.writer, ProcessBagWriter):
+                tid = self.writer.add_topic(topic, msgtype, qos_yaml(offered), local, stamped)
+            else:
+                self.writer.add_topic(topic, msgtype, qos_yaml(offered))
         except (ImportError, AttributeError, ValueError, BagError) as exc:
             self._skip(topic, str(exc))
             return
-        st = TopicStats(topic, msgtype, is_stamped(cls, msgtype), checked=len(offered) <= 1,
+        st = TopicStats(topic, msgtype, stamped, checked=len(offered) <= 1,
                         publishers=lambda: self.count_publishers(topic))
         self.stats[topic] = st
         qos = subscription_qos(offered, self.depth)
         holder: list[Any] = []
-        local = self.bus is not None and self.bus.has_publisher(topic)
         if self.bus is not None and local:
             # before the DDS reader exists: the writers' first-sample gate waits for that
-            self.bus.observe(topic, self._sink, (topic, st))
+            self.bus.observe(topic, self._sink, tid)
             self.bus.add_reader(topic)
             # never read: keep-last 1 holds the DDS copies a remote reader causes
             holder.append(self.create_subscription(cls, topic, lambda m: None,
@@ -192,17 +208,13 @@ class Recorder(GraphNode):
             f"recording {topic} [{msgtype}] ({qos.reliability.name.lower()}, "
             f"{qos.durability.name.lower()}{', in process' if local else ''})")
 
-    def _write_batch(self, batch: list[tuple[Any, bytes, int, int]]) -> None:
+    def _write_batch(self, batch: list[tuple[int, bytes, int, int]]) -> None:
         """The bus's messages of topics written in this process, ``(tag, data, seq, t_ns)``
-        in publication order, ``tag`` the topic and its :class:`TopicStats`."""
-        if not self._open:  # published after the bag was closed
-            return
-        try:
-            self.writer.write_all([(tag[0], t_ns, data) for tag, data, _, t_ns in batch])
-        except BagError:  # closed between the check and the write, by the executor
-            return
-        for (_, st), data, seq, t_ns in batch:
-            st.add(seq, read_stamp(data) if st.stamped else None, t_ns)
+        in publication order, ``tag`` the topic's id in the bag writer process."""
+        if self._open:  # not published after the bag was closed
+            assert isinstance(self.writer, ProcessBagWriter)
+            self.writer.write_frames(batch)
+            self._from_bus += len(batch)
 
     def _callback(self, topic: str, st: TopicStats, holder: list[Any]) -> Any:
         """A raw callback with message info, ``cb(cdr_bytes, info)`` (rclpy passes ``info``
@@ -238,8 +250,9 @@ class Recorder(GraphNode):
 
     @property
     def total(self) -> int:
-        """Messages recorded so far, every topic."""
-        return sum(s.count for s in list(self.stats.values()))
+        """Messages recorded so far, every topic (composed: the bus's as handed to the bag
+        writer process, whose counters join :attr:`stats` when the bag closes)."""
+        return self._from_bus + sum(s.count for s in list(self.stats.values()))
 
     def _report(self) -> None:
         """One throttled progress line (every ``report_period_s``)."""
@@ -291,6 +304,13 @@ class Recorder(GraphNode):
         # what was published, so a reader of the bag (and `dcsms up`'s summary) sees the loss
         self.writer.set_custom_data(PUBLISHED_KEY, published_json(list(self.stats.values())))
         path = self.writer.close()
+        if isinstance(self.writer, ProcessBagWriter):
+            self.stats.update(self.writer.stats)
+            self._from_bus = 0
+            if self.writer.dropped:
+                self.get_logger().warning(
+                    f"{self.writer.dropped} messages not recorded: the bag writer process fell "
+                    "behind by more than its backlog")
         return Recording(str(path), list(self.stats.values()), self.missing())
 
 

@@ -164,3 +164,55 @@ def test_in_process_recorder_keeps_every_real_time_sample(domain: int, cfg: Syst
     for topic, row in rows.items():
         assert row[3] == "0(0)", (topic, row)  # seq gaps (missing): none
         assert int(row[1]) == len(got.get(topic, [])), (topic, row)
+
+
+def _container_pid(domain: int) -> int | None:
+    """The composed process of this test's domain (its command line names the container)."""
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            cmd = (d / "cmdline").read_bytes()
+            env = (d / "environ").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if b"dcsms_ros.nodes.container" in cmd and f"ROS_DOMAIN_ID={domain}".encode() in env:
+            return int(d.name)
+    return None
+
+
+def test_a_killed_composed_process_leaves_a_closed_bag(domain: int, cfg: SystemConfig,
+                                                       tmp_path: Path) -> None:
+    """The composed process killed mid-run (SIGKILL: no drain, no close): its bag writer
+    process closes the bag with what it had received, renamed into place and readable, each
+    plant sample once and in order from the first. Written in the killed process, as before
+    the bag writer process, the bag was lost with it."""
+    bag, logs = tmp_path / "bag", tmp_path / "logs"
+    env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}
+    up_log = tmp_path / "up.log"
+    with up_log.open("w") as out:
+        up = subprocess.Popen([*DCSMS, "up", "--composed", "--lockstep", "--mode", "DFBC+FFC",
+                               "--duration", "600", "--record", str(bag), "--log-dir", str(logs)],
+                              stdout=out, stderr=subprocess.STDOUT, env=env, text=True)
+    try:
+        _wait_for(logs / "graph.log", "graph connected", 60.0)
+        time.sleep(3.0)
+        pid = _container_pid(domain)
+        assert pid is not None
+        os.kill(pid, signal.SIGKILL)
+        assert up.wait(60.0) != 0  # a process died: said, not hidden
+    finally:
+        if up.poll() is None:
+            up.kill()
+            up.wait()
+    end = time.monotonic() + 60.0
+    while not (bag / "metadata.yaml").exists() and time.monotonic() < end:
+        time.sleep(0.1)
+    got = _read(bag)
+    raw = got[topics.SENSORS_RAW]
+    k = np.round(_stamps(raw, cdr.JOINT_STATE) * cfg.plant.rate_hz / 1e9).astype(int)
+    once = np.unique(k)
+    assert once.size > 1000  # seconds of lockstep samples (thousands a second)
+    np.testing.assert_array_equal(once, np.arange(once.size))
+    assert k.size - once.size <= 2 and np.all(np.diff(k) >= 0)  # sample 0's repeats only
+    assert "ended without closing" in logs.joinpath("graph.log").read_text()
