@@ -103,7 +103,8 @@ class ProcessBagWriter:
             stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         assert self._proc.stdin is not None and self._proc.stdout is not None
         self._out: IO[bytes] = self._proc.stdout
-        self._fd = self._proc.stdin.fileno()
+        self._stdin: IO[bytes] = self._proc.stdin  # written through its descriptor only
+        self._fd = self._stdin.fileno()
         try:
             fcntl.fcntl(self._fd, _F_SETPIPE_SZ, PIPE_BYTES)
         except OSError:  # a lower limit: the default pipe and the backlog
@@ -265,7 +266,7 @@ class ProcessBagWriter:
             self._drain(-1)
             self._ended = True
         try:
-            os.close(self._fd)
+            self._stdin.close()  # the end of input: the process's, if it missed the frame
         except OSError:
             pass
 

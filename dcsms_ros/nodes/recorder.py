@@ -89,6 +89,9 @@ class Recorder(GraphNode):
     ----------
     out, topics, storage, duration_s, queue_depth, exclude : optional
         Override the ROS parameters of the same name (used by ``dcsms record``).
+    lossless : bool
+        Composed: wait for the bag writer process when it falls behind (lockstep) rather than
+        drop and count (real time; :mod:`dcsms_ros.analysis.bagprocess`).
     **kwargs
         Passed to :class:`rclpy.node.Node` (e.g. ``context``).
 
@@ -177,6 +180,7 @@ class Recorder(GraphNode):
         local = self.bus is not None and self.bus.has_publisher(topic)
         if isinstance(self.writer, ProcessBagWriter):
             self.writer.wait_ready()  # the bag's own error (it exists) is not the topic's
+        tid = -1  # the topic's id in the bag writer process
         try:
             cls = msg_class(msgtype)
             stamped = is_stamped(cls, msgtype)
