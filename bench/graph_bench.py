@@ -274,12 +274,12 @@ def _lockstep_why(composed: float, process: float, runs: Sequence[float] = ()) -
     return (f"; NOT met, {' and '.join(why)}{scatter}"
             ": the step is one Python thread doing every node's work, spread thin (py-spy, the "
             "plant's, the decoupling's and the controllers' samples compiled: plant 37 %, "
-            "controllers 22 % (their kernel 7 %), decoupling 15 %, recorder 11 %, "
-            "checkpoints 7 %; no source line above 3 %); recording is about a third of it "
-            "(the driver's CPU 85-86 us a step recorded against 59-62 not, the true twists, "
-            "published for the recorder only, 10-18 us of that: performance.md, what "
-            "recording costs), and it is preempted on a shared "
-            "machine (performance.md, the composed lockstep step); the compiled plant and "
+            "controllers 22 % (their kernel 7 %), decoupling 15 %, checkpoints 7 %; no source "
+            "line above 3 %); recording costs the driver ~14 us a step since its bag is written "
+            "by a bag writer process (80 against 66 us unrecorded in a same-run pair; 25 us "
+            "before: performance.md, the bag writer process): the bus's batches framed into "
+            "a pipe, and the true twists published for the recorder only; it is preempted on "
+            "a shared machine (performance.md, the composed lockstep step); the compiled plant and "
             "decoupling made the 6 processes faster too (5-6 %), and host lanes 7-14 % before "
             "(same-run pairs, performance.md)")
 
