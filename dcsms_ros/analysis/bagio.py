@@ -58,8 +58,8 @@ class BagWriter:
     counts : dict of str to int
         Messages written per topic.
 
-    Thread-safe: a composed recorder writes from the executor (topics from other processes)
-    and from the driver thread (in-process delivery); each call holds the writer's own lock.
+    Thread-safe: each call holds the writer's own lock (a recorder may write from more than
+    one thread).
     """
 
     def __init__(self, path: str | Path, storage: str = "mcap", compress: bool = True) -> None:

@@ -77,9 +77,10 @@ class McapBagWriter:
         zstd chunks (default) or uncompressed.
     defer_flush : bool
         Leave full chunks for :meth:`flush` instead of compressing and writing them inside
-        the :meth:`write` that filled them. A recorder in a composed process writes on the
-        real-time driver thread, where closing a 4 MB chunk took 9-12 ms (a gap of 20+ samples
-        at 2 kHz, every 1.75 s); its executor calls :meth:`flush` (:data:`CHUNK_MAX_AGE_S`).
+        the :meth:`write` that filled them. A node's part recorder writes on its real-time hot
+        thread, where closing a 4 MB chunk took 9-12 ms (a gap of 20+ samples at 2 kHz, every
+        1.75 s, measured when the composed recorder wrote on its driver thread); the node's
+        executor calls :meth:`flush` (:data:`CHUNK_MAX_AGE_S`).
 
     Attributes
     ----------
@@ -109,8 +110,8 @@ class McapBagWriter:
         #: rosbag2's ``custom_data`` of ``metadata.yaml`` (:meth:`set_custom_data`)
         self.custom_data: dict[str, str] = {}
         self._closed = False
-        # a composed recorder writes from the executor (topics of other processes) and from
-        # the driver thread (in-process delivery): every public call holds this lock, but only
+        # a part recorder writes from its node's hot thread and flushes from its executor (a
+        # recorder from its executor alone): every public call holds this lock, but only
         # for the in-memory state; the file is written under ``_flock`` (taken first, never
         # while ``_lock`` is held), so compressing a chunk never blocks a write
         self._lock = threading.RLock()
@@ -172,7 +173,7 @@ class McapBagWriter:
 
     def write_all(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
         """Messages ``(topic, t_ns, data)`` in their order, under one hold of the lock (a
-        recorder's batch: a composed process's observers, ``LocalBus``). Raises as
+        recorder's batch: a node's part, the bag writer process's frames). Raises as
         :meth:`write`."""
         with self._lock:
             if self._closed:

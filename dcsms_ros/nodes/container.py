@@ -32,7 +32,8 @@ executor's thread on the driver's core, where it runs only while the driver wait
 (:mod:`dcsms_ros.ros.hotloop`); ``$DCSMS_RT_CPUS`` (``dcsms up --rt-cpus``) the CPUs of the
 driver, the executor's thread then on the last of them. ``--record OUT
 [TOPIC ...]`` runs the recorder node in this process too (``dcsms up --recorder composed``):
-it takes the graph's messages from the bus, every one of them, in lockstep and in real time.
+it takes the graph's messages from the bus, every one of them, in lockstep and in real time,
+and a bag writer process it starts writes the bag (:mod:`dcsms_ros.analysis.bagprocess`).
 Exit status: 0 after SIGINT/SIGTERM or a finished run, 2 after a configuration error (one line).
 """
 

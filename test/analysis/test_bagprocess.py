@@ -42,13 +42,14 @@ def _read(bag: Path) -> tuple[list[tuple[str, int, bytes]], dict[str, int]]:
     return msgs, bag_published(bag)
 
 
-def test_the_bag_and_its_counters_are_those_written(tmp_path: Path) -> None:
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_the_bag_and_its_counters_are_those_written(tmp_path: Path, storage: str) -> None:
     """Messages in batches (counted by the process) and one at a time (counted by the
     caller) come back in order, bit for bit; the process's counters equal
     :class:`TopicStats` fed directly, a gap of 3 samples included; its published count joins
     the caller's in the custom data."""
     msgs = _twists(2000, skip={1000, 1001, 1002})
-    w = ProcessBagWriter(tmp_path / "bag")
+    w = ProcessBagWriter(tmp_path / "bag", storage)
     vel = w.add_topic(VEL, cdr.TWIST_STAMPED, stats=True, stamped=True)
     w.add_topic(MODE, "std_msgs/msg/String")
     w.write(MODE, 5, cdr.encode_string("FBC"))
