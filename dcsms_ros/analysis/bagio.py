@@ -29,6 +29,7 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys.base import TypesysError
 
 from dcsms_ros.analysis import staging
+from dcsms_ros.analysis.mcapwrite import McapBagWriter
 from dcsms_ros.cdr import typestore
 from dcsms_ros.errors import BagError
 
@@ -205,4 +206,19 @@ def open_bag(path: str | Path, storage: str = "mcap") -> Iterator[BagWriter]:
     writer.close()
 
 
-__all__ = ["BAG_VERSION", "LATCHED_QOS", "STORAGES", "BagWriter", "open_bag"]
+def new_writer(out: str | Path, storage: str = "mcap",
+               defer_flush: bool = False) -> McapBagWriter | BagWriter:
+    """A writer of the new bag ``out``: MCAP through the package's own writer (~1.5 us a
+    message where rosbags' took ~4-7; ``defer_flush``: :class:`.McapBagWriter`'s), any other
+    ``storage`` through rosbags'.
+
+    Raises
+    ------
+    BagError
+        As the writer's constructor.
+    """
+    return (McapBagWriter(out, defer_flush=defer_flush) if storage == "mcap"
+            else BagWriter(out, storage))
+
+
+__all__ = ["BAG_VERSION", "LATCHED_QOS", "STORAGES", "BagWriter", "new_writer", "open_bag"]

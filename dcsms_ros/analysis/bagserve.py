@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from dcsms_ros.analysis.bagframes import ABORT, CLOSE, CUSTOM, LOST, MESSAGE, TOPIC, FrameReader
-from dcsms_ros.analysis.bagio import BagWriter
+from dcsms_ros.analysis.bagio import BagWriter, new_writer
 from dcsms_ros.analysis.gaps import PUBLISHED_KEY, TopicStats, published_json, read_published
 from dcsms_ros.analysis.mcapwrite import McapBagWriter
 from dcsms_ros.cdr import read_stamp
@@ -32,11 +32,6 @@ from dcsms_ros.errors import DcsmsError
 
 #: Bytes asked of the pipe per read.
 READ_BYTES = 1 << 20
-
-
-def open_writer(out: str, storage: str) -> McapBagWriter | BagWriter:
-    """The bag writer for ``storage`` (MCAP through the package's own writer)."""
-    return McapBagWriter(out) if storage == "mcap" else BagWriter(out, storage)
 
 
 class Served:
@@ -106,7 +101,7 @@ class Served:
 def serve(out: str, storage: str, fd_in: int, emit: Any) -> int:
     """Serve one bag (see the module notes); ``emit(dict)`` prints a result line."""
     try:
-        writer = open_writer(out, storage)
+        writer = new_writer(out, storage)
     except DcsmsError as exc:
         emit({"error": str(exc)})
         return 2

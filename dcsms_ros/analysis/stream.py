@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from dcsms_ros import cdr
-from dcsms_ros.analysis.bagio import LATCHED_QOS, BagWriter
+from dcsms_ros.analysis.bagio import LATCHED_QOS, new_writer
 from dcsms_ros.analysis.export import to_six
 from dcsms_ros.analysis.mcaprecords import MESSAGE_HEADER, RowTemplate
 from dcsms_ros.analysis.mcapwrite import McapBagWriter
@@ -189,8 +189,7 @@ class _Writer:
 
     def _run(self) -> None:
         try:
-            self.bag = (McapBagWriter(self.out) if self.storage == "mcap"
-                        else BagWriter(self.out, self.storage))
+            self.bag = new_writer(self.out, self.storage)
             while (item := self.queue.get()) is not None:
                 if item is _ABORT:
                     self.bag.abort()

@@ -48,7 +48,7 @@ from typing import Any
 
 from rclpy.node import Node
 
-from dcsms_ros.analysis.bagio import BagWriter
+from dcsms_ros.analysis.bagio import BagWriter, new_writer
 from dcsms_ros.analysis.bagprocess import ProcessBagWriter
 from dcsms_ros.analysis.gaps import PUBLISHED_KEY, Recording, TopicStats, published_json
 from dcsms_ros.analysis.mcapwrite import McapBagWriter
@@ -118,17 +118,12 @@ class Recorder(GraphNode):
         discovery_s = float(p("discovery_period_s", 0.5).value)
         ctx = self.context
         self.bus = ctx.bus if isinstance(ctx, DrivenContext) else None
-        # MCAP through the package's own writer: ~1.5 us per message where rosbags' took ~4-7.
-        # Composed, the bag is written by another process: the driver thread only frames the
+        # composed, the bag is written by another process: the driver thread only frames the
         # bus's batches into a pipe (analysis/bagprocess.py); alone, chunks are compressed and
         # written by this node's executor (FLUSH_PERIOD_S), never in a write
-        self.writer: BagWriter | McapBagWriter | ProcessBagWriter
-        if self.bus is not None:
-            self.writer = ProcessBagWriter(self.out, self.storage, lossless)
-        elif self.storage == "mcap":
-            self.writer = McapBagWriter(self.out, defer_flush=True)
-        else:
-            self.writer = BagWriter(self.out, self.storage)
+        self.writer: BagWriter | McapBagWriter | ProcessBagWriter = (
+            ProcessBagWriter(self.out, self.storage, lossless) if self.bus is not None
+            else new_writer(self.out, self.storage, defer_flush=True))
         self.stats: dict[str, TopicStats] = {}
         self._skipped: set[str] = set()
         self._subs: list[Any] = []
