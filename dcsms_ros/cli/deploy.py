@@ -36,6 +36,8 @@ from dcsms_ros.cli.processes import (
     RECORDER_STOP_TIMEOUTS,
     STOP_TIMEOUTS,
     Child,
+    adopting_orphans,
+    reap_orphans,
     report_exits,
     start,
     stop,
@@ -198,22 +200,25 @@ def run_graph(spec: GraphSpec, how: Deployment, stop_requested: Callable[[], boo
     plant: dict[str, str] = {}
     steal: float | None = None
     cpu0 = read_cpu_times()
-    try:
-        start(kids, how.log_dir, how.verbose)  # recorder first: it must see the first samples
-        start(graph, how.log_dir, how.verbose)
-        announce(len(graph))
-        # the monitor's node and context go before the graph is stopped
-        with monitoring(spec, how.events, rate_hz) as monitor:
-            status = monitor.supervise(graph + kids, stop_requested, how.connect_timeout,
-                                       how.expect_finish)
-            plant = dict(monitor.diag.get("plant_simulator", {}))
-            steal = steal_fraction(cpu0, read_cpu_times())
-    finally:
-        # the graph first (composed with the recorder inside: its drain too), so the recorder
-        # receives everything it published
-        stop_in_turn(graph, RECORDER_STOP_TIMEOUTS if in_process or parts else STOP_TIMEOUTS)
-        stop(kids, RECORDER_STOP_TIMEOUTS)
-    status = report_exits(graph + kids) or status
+    # a composed process that dies leaves its bag writer closing the bag: waited for below
+    with adopting_orphans():
+        try:
+            start(kids, how.log_dir, how.verbose)  # recorder first: it must see the first samples
+            start(graph, how.log_dir, how.verbose)
+            announce(len(graph))
+            # the monitor's node and context go before the graph is stopped
+            with monitoring(spec, how.events, rate_hz) as monitor:
+                status = monitor.supervise(graph + kids, stop_requested, how.connect_timeout,
+                                           how.expect_finish)
+                plant = dict(monitor.diag.get("plant_simulator", {}))
+                steal = steal_fraction(cpu0, read_cpu_times())
+        finally:
+            # the graph first (composed with the recorder inside: its drain too), so the
+            # recorder receives everything it published
+            stop_in_turn(graph, RECORDER_STOP_TIMEOUTS if in_process or parts else STOP_TIMEOUTS)
+            stop(kids, RECORDER_STOP_TIMEOUTS)
+            orphans = reap_orphans(graph + kids)
+    status = report_exits(graph + kids, orphans) or status
     if parts is not None and how.record is not None:
         status = merge_parts(parts, how.record) or status
     if plant:

@@ -18,7 +18,8 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,9 @@ STOP_TIMEOUTS = (5.0, 2.0)
 RECORDER_STOP_TIMEOUTS = (40.0, 5.0)
 #: Seconds a child still running after both gets to write its threads' stacks (SIGABRT).
 ABORT_TIMEOUT_S = 2.0
+#: Seconds a process left behind by a dead child gets to end before SIGKILL (a bag writer
+#: closing a bag: bagprocess.CLOSE_TIMEOUT_S).
+ORPHAN_TIMEOUT_S = 120.0
 
 
 @dataclass
@@ -60,8 +64,24 @@ def child_env() -> dict[str, str]:
     return env
 
 
-#: ``prctl`` option: the signal a process gets when its parent dies (linux/prctl.h).
+#: ``prctl`` options (linux/prctl.h): the signal a process gets when its parent dies; a
+#: process that adopts its descendants' orphans, and the query of it.
 PR_SET_PDEATHSIG = 1
+PR_SET_CHILD_SUBREAPER = 36
+PR_GET_CHILD_SUBREAPER = 37
+
+
+@dataclass(frozen=True)
+class Orphan:
+    """A process a dead child left behind, after :func:`reap_orphans` waited for it."""
+
+    pid: int
+    #: the module it ran (``python -m``) or its program's name
+    name: str
+    #: its exit status (negative: the signal that ended it)
+    code: int
+    #: True if it did not end within the timeout and was killed
+    killed: bool = False
 
 
 def _dies_with(parent: int, nice: int = 0) -> Callable[[], None] | None:
@@ -80,6 +100,80 @@ def _dies_with(parent: int, nice: int = 0) -> Callable[[], None] | None:
             os.nice(nice)
 
     return arm
+
+
+@contextmanager
+def adopting_orphans() -> Iterator[bool]:
+    """While it holds, a process left behind by a dead descendant becomes this process's
+    child (:func:`reap_orphans` waits for it) instead of init's. Yields False where that is
+    not possible (not Linux); the previous setting is restored at the end."""
+    if not sys.platform.startswith("linux"):
+        yield False
+        return
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    before = ctypes.c_int(0)
+    prctl(PR_GET_CHILD_SUBREAPER, ctypes.byref(before))
+    ok = prctl(PR_SET_CHILD_SUBREAPER, 1) == 0
+    try:
+        yield ok
+    finally:
+        prctl(PR_SET_CHILD_SUBREAPER, before.value)
+
+
+def _session(pid: int) -> int | None:
+    """The session of process ``pid`` (None if it is gone)."""
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[3])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def _children() -> set[int]:
+    """The pids of this process's children (every thread's)."""
+    pids: set[int] = set()
+    for path in Path(f"/proc/{os.getpid()}/task").glob("*/children"):
+        try:
+            pids.update(int(p) for p in path.read_text().split())
+        except OSError:  # the thread ended
+            continue
+    return pids
+
+
+def _program(pid: int) -> str:
+    """The module ``pid`` runs (``python -m``) or its program's name."""
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace").split("\0")
+    except OSError:
+        return "?"
+    if "-m" in argv[:-1]:
+        return argv[argv.index("-m") + 1]
+    return Path(argv[0]).name or "?"
+
+
+def reap_orphans(kids: Collection[Child], timeout: float = ORPHAN_TIMEOUT_S) -> list[Orphan]:
+    """Wait for every process that one of ``kids`` left behind (adopted while
+    :func:`adopting_orphans` held; it is in the session of the child that started it, which
+    :func:`start` made its own), SIGKILL after ``timeout`` seconds in all. Call it once
+    ``kids`` exited; other children of this process are left alone."""
+    known = {k.proc.pid for k in kids if k.proc is not None}
+    pending = {pid: _program(pid) for pid in _children() - known if _session(pid) in known}
+    done: list[Orphan] = []
+    deadline = time.monotonic() + timeout
+    while pending:
+        for pid in list(pending):
+            got, status = os.waitpid(pid, os.WNOHANG)
+            if got:
+                done.append(Orphan(pid, pending.pop(pid), os.waitstatus_to_exitcode(status)))
+        if not pending:
+            break
+        if time.monotonic() >= deadline:
+            for pid, name in pending.items():
+                os.kill(pid, signal.SIGKILL)
+                done.append(Orphan(pid, name, os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]),
+                                   killed=True))
+            break
+        time.sleep(0.05)
+    return done
 
 
 def start(kids: Sequence[Child], log_dir: Path, verbose: bool) -> None:
@@ -140,17 +234,17 @@ def stop_in_turn(kids: Sequence[Child], timeouts: tuple[float, float] = STOP_TIM
         stop([kid], timeouts)
 
 
-def report_exits(kids: Sequence[Child]) -> int:
+def report_exits(kids: Sequence[Child], orphans: Sequence[Orphan] = ()) -> int:
     """One line on stderr for each stopped process that did not exit cleanly (a node that
     failed while closing, or one killed after the stop timeouts: what it held back, its part
-    of the bag included, may be lost); 1 if there was one, else 0."""
+    of the bag included, may be lost), and one for each process a dead one left behind
+    (:func:`reap_orphans`); 1 if there was one, else 0."""
     status = 0
     for kid in kids:
         code = kid.proc.returncode if kid.proc is not None else None
         if code in (0, None):
             continue
-        how = (f"was killed by {signal.Signals(-code).name}" if code < 0 and
-               -code in signal.valid_signals() else f"exited with status {code}")
+        how = _ended(code)
         log = f"its log: {kid.log}"
         if code == -signal.SIGABRT and kid.stopped_by is signal.SIGABRT:
             how, log = "did not stop and was aborted", f"its threads' stacks are in {log}"
@@ -160,7 +254,18 @@ def report_exits(kids: Sequence[Child]) -> int:
         print(f"dcsms up: {kid.name} {how}" + (f" ({log})" if kid.log else ""),
               file=sys.stderr, flush=True)
         status = 1
+    for o in orphans:
+        print(f"dcsms up: {o.name} (pid {o.pid}), left behind by a process that died, "
+              f"{'did not end in time and was killed' if o.killed else _ended(o.code)}",
+              file=sys.stderr, flush=True)
+        status = 1
     return status
+
+
+def _ended(code: int) -> str:
+    """How a process with exit status ``code`` ended, for a line of :func:`report_exits`."""
+    return (f"was killed by {signal.Signals(-code).name}" if code < 0 and
+            -code in signal.valid_signals() else f"exited with status {code}")
 
 
 def _teardown_timed_out(log: Path) -> bool:
@@ -177,5 +282,6 @@ def _teardown_timed_out(log: Path) -> bool:
                for line in tail.splitlines())
 
 
-__all__ = ["ABORT_TIMEOUT_S", "RECORDER_STOP_TIMEOUTS", "STOP_TIMEOUTS", "Child", "child_env",
-           "report_exits", "start", "stop", "stop_in_turn"]
+__all__ = ["ABORT_TIMEOUT_S", "ORPHAN_TIMEOUT_S", "RECORDER_STOP_TIMEOUTS", "STOP_TIMEOUTS",
+           "Child", "Orphan", "adopting_orphans", "child_env", "reap_orphans", "report_exits",
+           "start", "stop", "stop_in_turn"]

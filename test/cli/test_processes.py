@@ -5,6 +5,7 @@ reported, a stuck one is aborted with its stacks, and the graph stops one proces
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import signal
@@ -187,3 +188,68 @@ def test_stop_in_turn_stops_each_child_after_the_one_started_after_it_exited(
     assert times == sorted(times)
     assert all(k.proc is not None and k.proc.returncode == 0 for k in kids)
     assert processes.report_exits(kids) == 0
+
+
+#: A child that starts a process of its own and exits at once, leaving it behind; that process
+#: writes ``closed`` to argv[1] after argv[2] seconds and exits with status 3 (a composed
+#: process's bag writer closing the bag once its parent died).
+LEAVES_ONE = r"""
+import subprocess, sys
+subprocess.Popen([sys.executable, "-c",
+                  "import sys, time; time.sleep(float(sys.argv[2])); "
+                  "open(sys.argv[1], 'w').write('closed'); sys.exit(3)", *sys.argv[1:]])
+"""
+
+
+def _prctl_subreaper() -> int:
+    flag = ctypes.c_int(-1)
+    ctypes.CDLL(None).prctl(processes.PR_GET_CHILD_SUBREAPER, ctypes.byref(flag))
+    return flag.value
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_CHILD_SUBREAPER")
+def test_a_process_a_dead_child_left_behind_is_waited_for(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A child that died leaving a process of its own behind: the parent adopts it and waits
+    for it, so what it does at its end (a bag closed) is done when the parent reports; one
+    line names it. A child of the parent that no child started is left alone, and the
+    parent's setting is restored after."""
+    done = tmp_path / "done"
+    kid = processes.Child("leaver", [sys.executable, "-c", LEAVES_ONE, str(done), "1.0"])
+    own = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        before = _prctl_subreaper()
+        with processes.adopting_orphans() as adopting:
+            assert adopting and _prctl_subreaper() == 1
+            processes.start([kid], tmp_path, verbose=False)
+            assert kid.proc is not None and kid.proc.wait(30.0) == 0
+            assert not done.exists()
+            left = processes.reap_orphans([kid])
+        assert _prctl_subreaper() == before
+        assert done.read_text() == "closed"
+        assert [(o.code, o.killed) for o in left] == [(3, False)]
+        assert own.poll() is None
+    finally:
+        own.kill()
+        own.wait()
+    assert processes.report_exits([kid], left) == 1
+    assert capsys.readouterr().err.strip() == (
+        f"dcsms up: {left[0].name} (pid {left[0].pid}), left behind by a process that died, "
+        "exited with status 3")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_CHILD_SUBREAPER")
+def test_a_process_left_behind_that_does_not_end_is_killed_after_the_timeout(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    done = tmp_path / "done"
+    kid = processes.Child("leaver", [sys.executable, "-c", LEAVES_ONE, str(done), "60"])
+    with processes.adopting_orphans():
+        processes.start([kid], tmp_path, verbose=False)
+        assert kid.proc is not None and kid.proc.wait(30.0) == 0
+        t0 = time.monotonic()
+        left = processes.reap_orphans([kid], timeout=0.5)
+    assert time.monotonic() - t0 < 5.0
+    assert [(o.code, o.killed) for o in left] == [(-signal.SIGKILL, True)]
+    assert not done.exists()
+    assert processes.report_exits([], left) == 1
+    assert "did not end in time and was killed" in capsys.readouterr().err
