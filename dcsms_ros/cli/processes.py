@@ -156,24 +156,34 @@ def reap_orphans(kids: Collection[Child], timeout: float = ORPHAN_TIMEOUT_S) -> 
     :func:`start` made its own), SIGKILL after ``timeout`` seconds in all. Call it once
     ``kids`` exited; other children of this process are left alone."""
     known = {k.proc.pid for k in kids if k.proc is not None}
-    pending = {pid: _program(pid) for pid in _children() - known if _session(pid) in known}
+    pending: dict[int, str] = {}
     done: list[Orphan] = []
-    deadline = time.monotonic() + timeout
-    while pending:
+    t0 = time.monotonic()
+    said = False
+    while True:
+        # again each time: one that ends may leave its own behind, in the same session
+        for pid in _children() - known - pending.keys():
+            if _session(pid) in known:
+                pending[pid] = _program(pid)
         for pid in list(pending):
             got, status = os.waitpid(pid, os.WNOHANG)
             if got:
                 done.append(Orphan(pid, pending.pop(pid), os.waitstatus_to_exitcode(status)))
         if not pending:
-            break
-        if time.monotonic() >= deadline:
+            return done
+        waited = time.monotonic() - t0
+        if waited >= timeout:
             for pid, name in pending.items():
                 os.kill(pid, signal.SIGKILL)
                 done.append(Orphan(pid, name, os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]),
                                    killed=True))
-            break
+            return done
+        if waited >= 1.0 and not said:
+            print(f"dcsms up: waiting up to {timeout:.0f} s for "
+                  f"{', '.join(f'{n} (pid {p})' for p, n in pending.items())}, left behind by a "
+                  "process that died", file=sys.stderr, flush=True)
+            said = True
         time.sleep(0.05)
-    return done
 
 
 def start(kids: Sequence[Child], log_dir: Path, verbose: bool) -> None:

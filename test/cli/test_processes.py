@@ -212,10 +212,10 @@ def test_a_process_a_dead_child_left_behind_is_waited_for(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A child that died leaving a process of its own behind: the parent adopts it and waits
     for it, so what it does at its end (a bag closed) is done when the parent reports; one
-    line names it. A child of the parent that no child started is left alone, and the
-    parent's setting is restored after."""
+    line says it waits (after 1 s), one how it ended. A child of the parent that no child
+    started is left alone, and the parent's setting is restored after."""
     done = tmp_path / "done"
-    kid = processes.Child("leaver", [sys.executable, "-c", LEAVES_ONE, str(done), "1.0"])
+    kid = processes.Child("leaver", [sys.executable, "-c", LEAVES_ONE, str(done), "2.0"])
     own = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
         before = _prctl_subreaper()
@@ -233,9 +233,10 @@ def test_a_process_a_dead_child_left_behind_is_waited_for(
         own.kill()
         own.wait()
     assert processes.report_exits([kid], left) == 1
-    assert capsys.readouterr().err.strip() == (
-        f"dcsms up: {left[0].name} (pid {left[0].pid}), left behind by a process that died, "
-        "exited with status 3")
+    who = f"{left[0].name} (pid {left[0].pid}), left behind by a process that died"
+    assert capsys.readouterr().err.splitlines() == [
+        f"dcsms up: waiting up to {processes.ORPHAN_TIMEOUT_S:.0f} s for {who}",
+        f"dcsms up: {who}, exited with status 3"]
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_CHILD_SUBREAPER")
