@@ -80,22 +80,33 @@ def run(smoke: bool, tmp: Path, rt_seconds: float | None = None) -> list[Row]:
                      f"RTT p50 {r['rtt_us_p50']:.0f} us, {r['round_trips']} round trips"})
     rate = {}
     for hot in (True, False):
-        r = run_graph("lockstep", ls_s, base + 2 + hot, tmp, hot=hot)
-        rate[hot] = lockstep_rate(r)
+        # the hot path against its bound: repeated, each run right after a ping-pong, since
+        # single runs of either moved by 30 % within an hour (docs/performance.md)
+        rates, bounds = [], []
+        for _ in range(HOT_REPEATS if hot and not smoke else 1):
+            if hot and not smoke:
+                bounds.append(_pp(pp_s, base, "single")["round_trips_per_s"])
+            r = run_graph("lockstep", ls_s, base + 2 + hot, tmp, hot=hot)
+            rates.append(lockstep_rate(r))
+        rate[hot] = statistics.median(rates)
+        bb = statistics.median(bounds) if bounds else b
+        each = (f"median of {len(rates)} runs ({' / '.join(f'{x:,.0f}' for x in rates)}), each "
+                f"after a ping-pong ({' / '.join(f'{x:,.0f}' for x in bounds)}; the bound is "
+                f"their median); " if bounds else "")
         cpu = ", ".join(f"{n} {100 * c:.0f}%" for n, c in sorted(r["cpu"].items()))
         lat = r["latency_s"]
         rows.append({
             "name": f"graph: lockstep DFBC+FFC, 6 processes, "
                     f"{'hot path' if hot else 'default executor only'}",
             "value": rate[hot], "unit": "steps/s", "baseline_name": "ping-pong bound",
-            "baseline": b, "target": 2000.0 if hot else None,
+            "baseline": bb, "target": 2000.0 if hot else None,
             "target_ratio": 0.6 if hot else None,
-            "note": f"real-time factor {rate[hot] / 2000.0:.2f}x at 2 kHz; step p50 "
-                    f"{np.percentile(np.diff(r['t']), 50) * 1e6:.0f} us; sample->force p50 "
-                    f"{np.percentile(lat, 50) * 1e6:.0f} us; CPU {cpu}"
+            "note": f"{each}real-time factor {rate[hot] / 2000.0:.2f}x at 2 kHz; the last run's "
+                    f"step p50 {np.percentile(np.diff(r['t']), 50) * 1e6:.0f} us, "
+                    f"sample->force p50 {np.percentile(lat, 50) * 1e6:.0f} us, CPU {cpu}"
                     + (f"; {LOCKSTEP_PP_WHY}" if hot and rate[hot] < 2000.0 else "")
-                    + (f"; {_ratio_why(rate[hot], b, r['cpu'])}"
-                       if hot and rate[hot] < 0.6 * b else "")})
+                    + (f"; {_ratio_why(rate[hot], bb, r['cpu'])}"
+                       if hot and rate[hot] < 0.6 * bb else "")})
     if not smoke:
         # the same, control path under SCHED_FIFO (`dcsms up --rt-priority 50`): lockstep is
         # latency-bound, and a woken real-time thread runs at once
@@ -134,7 +145,10 @@ def run(smoke: bool, tmp: Path, rt_seconds: float | None = None) -> list[Row]:
     return rows
 
 
-#: What the deadline-miss rows measure, beside issue 21's late + stale.
+#: Runs of the per-process hot-path lockstep row, each after its own ping-pong bound: single
+#: runs gave 0.46-0.95 of the bound across nine benches, and 1,947-2,860 steps/s (old code) /
+#: 2,085-3,142 (new) in seven alternating pairs within 20 minutes (docs/performance.md).
+HOT_REPEATS = 3
 #: Why one process per node misses real time in lockstep (the per-process lockstep rows).
 LOCKSTEP_PP_WHY = ("NOT met: each lockstep step waits for three hops in sequence between "
                    "processes (plant to decoupling, to the controllers, back to the plant), "
@@ -155,6 +169,7 @@ def _ratio_why(steps_per_s: float, bound: float, cpu: dict[str, float]) -> str:
             f"CPU a step, wake-ups included: {work})")
 
 
+#: What the deadline-miss rows measure, beside issue 21's late + stale.
 MISS_WHY = ("the jitter of the plant's publication period; a late period is caught up within "
             "20 samples, so it is not a late sample (issue 21 counts late + stale: "
             "docs/performance.md)")
