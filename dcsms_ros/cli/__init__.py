@@ -63,8 +63,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns
     -------
     int
-        0 on success, 2 for a usage or configuration error (one line on stderr), 130 after
-        Ctrl-C, or what the sub-command returned.
+        0 on success, 2 for a usage or configuration error (one line on stderr), 1 for a
+        file the system refused (one line: the path and the reason), 130 after Ctrl-C, or
+        what the sub-command returned.
     """
     # Any ROS participant this process starts must stay on this machine unless told otherwise.
     keep_discovery_local()
@@ -88,6 +89,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # `dcsms ... | head`: the reader left; silence the interpreter's flush at exit too.
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
+        return 1
+    except OSError as exc:  # a full disk, a directory removed or read-only: not our defect
+        print(f"dcsms: error: {exc}", file=sys.stderr)
         return 1
     return int(status or 0)
 

@@ -131,8 +131,11 @@ def _prepare(out: Path) -> Path:
             raise DcsmsError(f"--out {out}: exists and was not written by `dcsms demo`; "
                              "not overwriting")
         shutil.rmtree(out)
-    out.mkdir(parents=True)
-    (out / MARKER).write_text("written by dcsms demo; replaced by the next demo\n")
+    try:
+        out.mkdir(parents=True)
+        (out / MARKER).write_text("written by dcsms demo; replaced by the next demo\n")
+    except OSError as exc:
+        raise DcsmsError(f"--out {out}: cannot create: {exc.strerror}") from None
     return out
 
 

@@ -116,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.out.exists():
         raise DcsmsError(f"--out {args.out}: exists already, not overwriting")
+    if not args.out.absolute().parent.is_dir():  # known before the tune, not after it
+        raise DcsmsError(f"--out {args.out}: {args.out.absolute().parent} is not a directory")
     if not 10 <= args.max_evaluations <= 100_000:
         raise DcsmsError("--max-evaluations must be in [10, 100000]")
     if not (args.check_seconds >= 0 and math.isfinite(args.check_seconds)):

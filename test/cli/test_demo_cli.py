@@ -47,6 +47,16 @@ def test_demo_refuses_to_replace_a_foreign_directory(tmp_path, capsys):
     assert (out / "notes.txt").read_text() == "keep me"
 
 
+def test_demo_that_cannot_create_its_output_says_so_in_one_line(tmp_path, capsys):
+    """An --out below a regular file: exit 2 and one line, before anything runs."""
+    (tmp_path / "file").write_text("keep me")
+    out = tmp_path / "file" / "demo"
+    assert main(["demo", "--engine", "batch", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot create" in err[0] and str(out) in err[0], err
+    assert (tmp_path / "file").read_text() == "keep me"
+
+
 @pytest.mark.slow
 def test_demo_with_a_mode_subset_is_judged_on_the_modes_it_ran(tmp_path, capsys):
     """--modes Passive,DFBC+FFC: exit 0, the ordering of those two, the skipped ones named.

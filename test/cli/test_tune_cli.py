@@ -49,6 +49,15 @@ def test_existing_output_is_never_overwritten(tmp_path, capsys):
     assert out.read_text() == "keep"
 
 
+def test_an_output_in_a_missing_directory_is_refused_before_the_tune(tmp_path, capsys):
+    """Found before minutes of tuning, not when the result is written: exit 2, one line."""
+    out = tmp_path / "missing" / "out.yaml"
+    assert main(["tune", "--config", str(TABLE1), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not a directory" in err[0], err
+    assert not (tmp_path / "missing").exists()
+
+
 @pytest.mark.slow
 def test_impossible_forces_exit_1_and_write_nothing(tmp_path, capsys):
     """1 uN actuators: even the least feedback gain (10 N s/m) on a um/s table needs more than
