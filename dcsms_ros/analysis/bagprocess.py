@@ -19,6 +19,7 @@ raises.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -27,6 +28,7 @@ import subprocess
 import sys
 import threading
 from collections import deque
+from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
@@ -58,6 +60,21 @@ CLOSE_TIMEOUT_S = 120.0
 _F_SETPIPE_SZ = 1031
 
 
+@contextlib.contextmanager
+def _forking_on(cpus: frozenset[int] | None) -> Iterator[None]:
+    """The calling thread on ``cpus`` while the block runs: a process it forks keeps them,
+    every thread of it too (set from outside, a thread it had started already would not)."""
+    if cpus is None:
+        yield
+        return
+    before = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, cpus)
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, before)
+
+
 class ProcessBagWriter:
     """Write the new bag ``out`` in a bag writer process (see the module notes).
 
@@ -73,6 +90,8 @@ class ProcessBagWriter:
         Wait for the process rather than drop messages (see the module notes).
     backlog_bytes : int
         :data:`BACKLOG_BYTES`.
+    cpus : frozenset of int, optional
+        The CPUs the process runs on (None: those of the calling thread).
 
     Attributes
     ----------
@@ -83,7 +102,8 @@ class ProcessBagWriter:
     """
 
     def __init__(self, out: str | Path, storage: str = "mcap", lossless: bool = True,
-                 backlog_bytes: int = BACKLOG_BYTES) -> None:
+                 backlog_bytes: int = BACKLOG_BYTES, cpus: frozenset[int] | None = None
+                 ) -> None:
         self.path = Path(out)
         self.lossless = lossless
         self.backlog_bytes = backlog_bytes
@@ -98,9 +118,10 @@ class ProcessBagWriter:
         self._dead = False  # the pipe broke
         self._ended = False  # the last frame went
         self._ready = False
-        self._proc = subprocess.Popen(
-            [sys.executable, "-m", "dcsms_ros.analysis.bagserve", str(out), storage],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        with _forking_on(cpus):
+            self._proc = subprocess.Popen(
+                [sys.executable, "-m", "dcsms_ros.analysis.bagserve", str(out), storage],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         assert self._proc.stdin is not None and self._proc.stdout is not None
         self._out: IO[bytes] = self._proc.stdout
         self._stdin: IO[bytes] = self._proc.stdin  # written through its descriptor only

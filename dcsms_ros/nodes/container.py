@@ -106,7 +106,8 @@ def run(graph_file: Path, params_file: Path, rt_priority: int = 0,
                 lockstep = spec.schedule == "lockstep"
                 recorder = Recorder(record[0], list(record[1:]) or None, context=ctx,
                                     queue_depth=LOCKSTEP_WRITER_DEPTH if lockstep else None,
-                                    lossless=lockstep)
+                                    lossless=lockstep,
+                                    writer_cpus=loop.spare_cpus(rt_priority))
                 executor.add_node(recorder)
             nodes = create_nodes(spec, ctx)
             serials = [serialize(nd) for nd in nodes]  # before any callback can run

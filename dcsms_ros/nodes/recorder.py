@@ -92,6 +92,8 @@ class Recorder(GraphNode):
     lossless : bool
         Composed: wait for the bag writer process when it falls behind (lockstep) rather than
         drop and count (real time; :mod:`dcsms_ros.analysis.bagprocess`).
+    writer_cpus : frozenset of int, optional
+        Composed: the CPUs of the bag writer process (None: the caller's).
     **kwargs
         Passed to :class:`rclpy.node.Node` (e.g. ``context``).
 
@@ -104,7 +106,8 @@ class Recorder(GraphNode):
     def __init__(self, out: str | None = None, topics: Sequence[str] | None = None,
                  storage: str | None = None, duration_s: float | None = None,
                  queue_depth: int | None = None, exclude: Sequence[str] | None = None,
-                 lossless: bool = True, **kwargs: Any) -> None:
+                 lossless: bool = True, writer_cpus: frozenset[int] | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = self.declare_parameter
         self.out = out or str(p("out", "dcsms_bag").value)
@@ -122,7 +125,8 @@ class Recorder(GraphNode):
         # bus's batches into a pipe (analysis/bagprocess.py); alone, chunks are compressed and
         # written by this node's executor (FLUSH_PERIOD_S), never in a write
         self.writer: BagWriter | McapBagWriter | ProcessBagWriter = (
-            ProcessBagWriter(self.out, self.storage, lossless) if self.bus is not None
+            ProcessBagWriter(self.out, self.storage, lossless, cpus=writer_cpus)
+            if self.bus is not None
             else new_writer(self.out, self.storage, defer_flush=True))
         self.stats: dict[str, TopicStats] = {}
         self._skipped: set[str] = set()

@@ -248,19 +248,38 @@ class HotLoop:
         if len(self.cpus) == 1:
             self.core = min(self.cpus)
 
-    def _share_core(self, tid: int, other: int) -> None:
-        """Pin ``tid`` (this loop's thread) and ``other`` to one core: the last of :attr:`cpus`,
-        else the last the process may use (none with a single core: nothing to share then)."""
+    def shared_core(self) -> int | None:
+        """The core this loop's thread shares with :attr:`share_core_with` under SCHED_FIFO:
+        the last of :attr:`cpus`, else the last the process may use (None: no thread to share
+        it with, or a single core)."""
+        if self.share_core_with is None:
+            return None
         cores = sorted(self.cpus or os.sched_getaffinity(0))
-        if len(cores) < 2 and not self.cpus:
+        return cores[-1] if len(cores) > 1 or self.cpus else None
+
+    def spare_cpus(self, rt_priority: int) -> frozenset[int] | None:
+        """The CPUs a helper process of the host (the bag writer) keeps to while the loop
+        runs under SCHED_FIFO ``rt_priority``: every one the process may use but
+        :meth:`shared_core`. A process woken on that core (by a write of the executor's
+        thread: the kernel wakes a task where its waker runs) preempts the executor's thread,
+        which may hold the GIL the woken driver waits for: a sample late (docs/performance.md,
+        "The bag writer off the driver's core"). None: the kernel places it."""
+        core = self.shared_core() if rt_priority else None
+        spare = frozenset(os.sched_getaffinity(0)) - {core}
+        return spare if core is not None and spare else None
+
+    def _share_core(self, tid: int, other: int) -> None:
+        """Pin ``tid`` (this loop's thread) and ``other`` to :meth:`shared_core`."""
+        core = self.shared_core()
+        if core is None:
             return
         try:
-            os.sched_setaffinity(tid, {cores[-1]})
-            os.sched_setaffinity(other, {cores[-1]})
+            os.sched_setaffinity(tid, {core})
+            os.sched_setaffinity(other, {core})
         except OSError as exc:
             self.rt_warning = f"could not put the executor on the driver's core ({exc})"
             return
-        self.core = cores[-1]
+        self.core = core
         sys.setswitchinterval(min(sys.getswitchinterval(), SHARED_CORE_GIL_SWITCH_S))
 
     def _run(self, rt_priority: int) -> None:

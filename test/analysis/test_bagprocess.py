@@ -70,6 +70,20 @@ def test_the_bag_and_its_counters_are_those_written(tmp_path: Path, storage: str
     assert w.dropped == 0 and not (tmp_path / "bag.partial").exists()
 
 
+def test_the_process_runs_on_the_cpus_asked_for_and_the_caller_keeps_its_own(
+        tmp_path: Path) -> None:
+    """``cpus``: every thread of the process on them, set at its start; the calling
+    thread's CPUs are as before."""
+    mine = os.sched_getaffinity(0)
+    one = frozenset({min(mine)})
+    w = ProcessBagWriter(tmp_path / "bag", cpus=one)
+    w.wait_ready()
+    tasks = os.listdir(f"/proc/{w._proc.pid}/task")
+    assert {frozenset(os.sched_getaffinity(int(t))) for t in tasks} == {one}
+    assert os.sched_getaffinity(0) == mine
+    w.close()
+
+
 def _stopped(w: ProcessBagWriter) -> int:
     pid = w._proc.pid
     os.kill(pid, signal.SIGSTOP)

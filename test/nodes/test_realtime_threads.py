@@ -192,6 +192,9 @@ def test_a_real_time_driver_shares_its_core_with_the_executor_thread(domain: int
         sys.setswitchinterval(0.005)
         with _driver(domain, "share_probe", **({} if share else {"share_core_with": None})
                      ) as loop:
+            # a helper process (the bag writer) keeps off the shared core, known before
+            assert loop.spare_cpus(0) is None
+            assert loop.spare_cpus(5) == (frozenset(mine) - {max(mine)} if share else None)
             loop.start(rt_priority=5)
             end = time.monotonic() + 2.0  # the thread pins itself as it starts
             while loop.core is None and loop.rt_warning is None and time.monotonic() < end:
@@ -223,6 +226,8 @@ def test_rt_cpus_choose_the_drivers_core(domain: int) -> None:
     mine = os.sched_getaffinity(me)
     for priority in (5, 0):
         with _driver(domain, "cpus_probe", cpus=frozenset({first})) as loop:
+            assert loop.spare_cpus(priority) == (frozenset(allowed) - {first} if priority
+                                                 else None)
             loop.start(rt_priority=priority)
             tid = loop.native_id
             assert tid is not None and loop.core == first
@@ -231,3 +236,55 @@ def test_rt_cpus_choose_the_drivers_core(domain: int) -> None:
                 assert os.sched_getaffinity(me) == {first}
             else:
                 assert os.sched_getaffinity(me) == mine
+
+
+def _children(parent: int, module: bytes) -> list[int]:
+    """The processes ``parent`` started that run ``python -m module``."""
+    found = []
+    for pid in (int(p) for p in os.listdir("/proc") if p.isdigit()):
+        with contextlib.suppress(OSError):  # gone meanwhile
+            stat = Path(f"/proc/{pid}/stat").read_text()
+            if int(stat.rsplit(")", 1)[1].split()[1]) == parent and \
+                    module in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0"):
+                found.append(pid)
+    return found
+
+
+def test_a_composed_real_time_bag_writer_keeps_off_the_drivers_core(tmp_path: Path,
+                                                                   domain: int) -> None:
+    """Composed in real time under SCHED_FIFO, the bag writer process (every thread of it)
+    runs on the CPUs besides the core the driver shares with the executor's thread: woken
+    there by a flush it preempted the executor's thread holding the GIL the driver waited
+    for (docs/performance.md, "The bag writer off the driver's core")."""
+    allowed = os.sched_getaffinity(0)
+    if len(allowed) < 2:
+        pytest.skip("one core: nothing to keep off")
+    cmd = [sys.executable, "-m", "dcsms_ros.cli", "up", "--realtime", "--composed",
+           "--rt-priority", "5", "--mode", "FBC", "--duration", "6",
+           "--record", str(tmp_path / "bag"), "--log-dir", str(tmp_path / "logs")]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    seen: dict[str, set[int]] = {}
+    try:
+        end = time.monotonic() + 60
+        while time.monotonic() < end and proc.poll() is None and len(seen) < 2:
+            for graph in _children(proc.pid, b"dcsms_ros.nodes.container"):
+                with contextlib.suppress(OSError):  # it may end meanwhile
+                    if os.sched_getscheduler(graph) == os.SCHED_OTHER \
+                            and len(os.sched_getaffinity(graph)) == 1:  # the executor, pinned
+                        seen["executor"] = os.sched_getaffinity(graph)
+                    for writer in _children(graph, b"dcsms_ros.analysis.bagserve"):
+                        seen["writer"] = set().union(*(
+                            os.sched_getaffinity(int(t))
+                            for t in os.listdir(f"/proc/{writer}/task")))
+            time.sleep(0.2)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, out
+    logs = "".join(f.read_text() for f in (tmp_path / "logs").glob("*.log"))
+    if "SCHED_FIFO priority 5 refused" in out + logs:
+        pytest.skip("SCHED_FIFO refused here: no core is shared")
+    assert set(seen) == {"writer", "executor"}, (seen, out)
+    assert seen["writer"] == set(allowed) - seen["executor"], seen
