@@ -8,7 +8,9 @@ only at the next forced switch (every ``GIL_SWITCH_S``) and then shares it. This
 ``PYTHONPATH``, not part of the package) that logs, in the composed process,
 
 * every pacer decision (``Pacer.due``): when the plant stepped, which sample was due, how many,
-* every executor callback (start, end, thread CPU, name),
+* every executor callback (start, end, thread CPU, name), and each housekeeping job the
+  host's one timer runs (``job NAME``; an awaiting job's first part runs in the timer's
+  callback, ``Housekeeper._tick``, after the job's own entry ends),
 * every wait of the executor's thread in ``rcl_wait`` (start, end),
 * every collection of Python's cyclic garbage collector (start, end, generation, thread),
 
@@ -101,6 +103,31 @@ if _OUT:
         ex._rclpy = shim
 
     _install()
+
+    def _install_jobs():
+        # each housekeeping job under its own name (the tick runs several, and an awaiting
+        # job's first part inside the tick, after its callback returned the coroutine)
+        from dcsms_ros.ros import housekeeping as hk
+        start0 = hk.Housekeeper.start
+
+        def start(self):
+            for job in self.jobs:
+                cb = job.callback
+                inner = getattr(cb, "__wrapped__", cb)
+                name = "job " + getattr(inner, "__qualname__", repr(inner))
+
+                def timed(cb=cb, name=name):
+                    t0, c0 = _mono(), time.thread_time()
+                    try:
+                        return cb()
+                    finally:
+                        _LOG["cb"].append((t0, _mono(), time.thread_time() - c0, name))
+                job.callback = timed
+            return start0(self)
+
+        hk.Housekeeper.start = start
+
+    _install_jobs()
 
     def _dump():
         if _LOG["due"]:

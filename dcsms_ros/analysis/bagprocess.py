@@ -5,7 +5,8 @@ real-time driver thread. Writing a message there (the chunk append, the counters
 stamp read) was about a third of the recorded lockstep step: the driver's CPU 85-86 us a step
 recorded, 59-62 not (docs/performance.md). Here the driver only frames each batch of messages
 and writes it to a pipe (~0.4 us a message); the bag writer process (:mod:`.bagserve`), on the
-other core, writes the bag and keeps the counters.
+other core (``cpus``: under SCHED_FIFO the host starts it off the driver's core), writes the bag
+and keeps the counters.
 
 The pipe never makes a real-time writer wait: it is non-blocking; the frames gather in a
 backlog, written once :data:`WRITE_BYTES` wait (or at :meth:`ProcessBagWriter.flush`), and what
