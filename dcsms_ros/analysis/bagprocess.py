@@ -64,12 +64,17 @@ _F_SETPIPE_SZ = 1031
 @contextlib.contextmanager
 def _forking_on(cpus: frozenset[int] | None) -> Iterator[None]:
     """The calling thread on ``cpus`` while the block runs: a process it forks keeps them,
-    every thread of it too (set from outside, a thread it had started already would not)."""
+    every thread of it too (set from outside, a thread it had started already would not).
+    CPUs the kernel refuses (none of them usable) leave the thread's own."""
+    before = os.sched_getaffinity(0)
+    try:
+        if cpus is not None:
+            os.sched_setaffinity(0, cpus)
+    except OSError:
+        cpus = None
     if cpus is None:
         yield
         return
-    before = os.sched_getaffinity(0)
-    os.sched_setaffinity(0, cpus)
     try:
         yield
     finally:

@@ -84,6 +84,15 @@ def test_the_process_runs_on_the_cpus_asked_for_and_the_caller_keeps_its_own(
     w.close()
 
 
+def test_cpus_the_kernel_refuses_leave_the_process_on_the_callers(tmp_path: Path) -> None:
+    """No CPU of ``cpus`` exists: the bag is written all the same, where the caller runs."""
+    mine = os.sched_getaffinity(0)
+    w = ProcessBagWriter(tmp_path / "bag", cpus=frozenset({4095}))
+    w.wait_ready()
+    assert os.sched_getaffinity(w._proc.pid) == mine == os.sched_getaffinity(0)
+    assert w.close().exists()
+
+
 def _stopped(w: ProcessBagWriter) -> int:
     pid = w._proc.pid
     os.kill(pid, signal.SIGSTOP)
