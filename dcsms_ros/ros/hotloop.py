@@ -5,14 +5,14 @@ After each wake-up the loop takes every queued message of the paths' subscriptio
 ``take_message`` and runs its handler under the path's lock, then the paths' ticks; it waits
 on a wait set of just those subscriptions and a stop guard condition (as
 :func:`rclpy.wait_for_message` does), for at most the shortest time a tick asked for. Only
-this thread may run under SCHED_FIFO (:meth:`HotLoop.prioritize`), and a process with one
-lowers Python's GIL switch interval (:data:`GIL_SWITCH_S`). Composed, the
+this thread may run under SCHED_FIFO (:mod:`.placement`), and a process with one lowers
+Python's GIL switch interval (:data:`GIL_SWITCH_S`). Composed, the
 :class:`DrivenContext`'s :attr:`~DrivenContext.driver` loop serves the paths of every node of
 the context and dispatches the in-process bus (:mod:`dcsms_ros.protocols.localbus`) in
 publication order until nothing is left.
 
 Composed in real time under SCHED_FIFO, the driver and the executor's thread (the process's
-main thread) share one core (:meth:`HotLoop.prioritize`, ``share_core_with``; not in lockstep,
+main thread) share one core (:mod:`.placement`, ``share_core_with``; not in lockstep,
 where the driver never waits and the executor would starve): the executor then runs only
 while the driver waits for its next deadline, and a driver that wakes preempts it at once
 and takes the GIL within :data:`SHARED_CORE_GIL_SWITCH_S`. On separate cores both ran Python
@@ -45,9 +45,9 @@ from rclpy.node import Node
 from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.localbus import LocalBus
-from dcsms_ros.ros.cpulatency import CpuLatencyRequest, hold_from_env
 from dcsms_ros.ros.laneinput import PROBE_S
 from dcsms_ros.ros.lanewait import LanePath, LaneWait
+from dcsms_ros.ros.placement import SHARED_CORE_GIL_SWITCH_S, ThreadPlacement
 
 #: Wake-up of the hot thread when nothing arrives (s): bounds the reaction to a stop request.
 IDLE_S = 0.1
@@ -56,17 +56,6 @@ IDLE_S = 0.1
 #: samples at 2 kHz): composed, recorded, 10 s of real time at SCHED_FIFO 50 were 52-61 % late
 #: with it and 0 % with 0.2 ms (2 runs each, docs/performance.md).
 GIL_SWITCH_S = 2e-4
-#: The same, once the composed driver and the executor's thread share one core
-#: (:meth:`HotLoop.prioritize`). There the executor can hold the GIL only while the driver
-#: sleeps, and the woken driver waits one interval before Python asks the holder to let go:
-#: 200 us at every sample during an executor burst (the trip judge, every 50 ms). At 50 us, 21
-#: alternating pairs of composed 20 s runs: late samples fewer in 15 (5,317 -> 3,663 in all);
-#: samples published > 250 us behind their deadline within the judge's 11 ms window fewer in
-#: 17 of 18 (2.0-14x). Not on separate cores (one process per node), where both threads run at
-#: once and nothing showed a gain: 50 us had fewer late samples in 3 of 6 pairs. 20 us was no
-#: better than 200 us (composed, 4 runs). docs/performance.md, "The GIL switch interval on a
-#: shared core".
-SHARED_CORE_GIL_SWITCH_S = 5e-5
 
 
 def settle_heap() -> None:
@@ -101,17 +90,19 @@ class Served(LanePath, Protocol):
     def tick(self) -> float | None: ...
 
 
-class HotLoop:
+class HotLoop(ThreadPlacement):
     """One thread serving the hot paths added to it, in the order they were added.
 
     After each wake-up it empties every path's subscriptions (composed, in passes with the
     bus until a pass takes nothing: a handler's publication is another node's input), then the
     ticks; it waits on a wait set of all the subscriptions and a guard condition for at most
     the shortest time a tick asked for (on its wake-up pipe alone when it serves no DDS
-    subscription: composed, with every topic in-process).
+    subscription: composed, with every topic in-process). Its priority and CPUs:
+    :class:`~.placement.ThreadPlacement`.
     """
 
     def __init__(self, context: Context, name: str) -> None:
+        super().__init__()
         self.context = context
         self.name = name
         self.paths: list[Served] = []
@@ -121,20 +112,9 @@ class HotLoop:
         self.error: BaseException | None = None
         #: Called (on the loop's thread) once it failed: the host wakes its spin loop.
         self.on_error: Callable[[], object] | None = None
-        self.rt_warning: str | None = None
         self.wakeups = 0
         self._subs: list[Subscription] = []
         self._serving: list[Served] = []
-        #: Native id of a thread to put on the driver's core under SCHED_FIFO (composed: the
-        #: executor's thread; None: no pinning).
-        self.share_core_with: int | None = None
-        #: The CPUs the thread may run on (set before it starts; empty: the kernel places it).
-        self.cpus: frozenset[int] = frozenset()
-        self._pinned: frozenset[int] = frozenset()
-        #: The core the thread was pinned to (None: not pinned to one).
-        self.core: int | None = None
-        #: The CPU wake-up latency held while the loop runs under SCHED_FIFO (:mod:`.cpulatency`).
-        self.cpu_latency: CpuLatencyRequest | None = None
         self._prioritized = threading.Event()
         #: set by :meth:`wake`: the next pass runs every tick, lazy ones too
         self._rearm = False
@@ -208,79 +188,6 @@ class HotLoop:
         if self._guard is not None:
             with contextlib.suppress(Exception):  # the context may be gone already
                 self._guard.trigger()
-
-    def prioritize(self, rt_priority: int) -> str | None:
-        """Put the running thread (only it) on :attr:`cpus` (if any), under SCHED_FIFO
-        ``rt_priority`` (1-99), and hold the CPU wake-up latency :mod:`.cpulatency` asks for
-        while the loop runs; returns a warning when any is refused (no CAP_SYS_NICE, not
-        root), else None."""
-        thread = self._thread
-        if thread is None or thread.native_id is None:
-            return None
-        if self.cpus:
-            self._pin(thread.native_id)
-        if not rt_priority:
-            return self.rt_warning
-        try:
-            os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(rt_priority))
-        except (OSError, AttributeError) as exc:
-            self.rt_warning = (f"SCHED_FIFO priority {rt_priority} refused ({exc}); "
-                               f"default scheduler kept")
-            return self.rt_warning
-        if self.share_core_with is not None:
-            self._share_core(thread.native_id, self.share_core_with)
-        if self.cpu_latency is None:
-            self.cpu_latency, warning = hold_from_env()
-            if warning:
-                self.rt_warning = f"{self.rt_warning}; {warning}" if self.rt_warning else warning
-        return self.rt_warning
-
-    def _pin(self, tid: int) -> None:
-        if self._pinned == self.cpus:  # the thread's start and the host may both ask
-            return
-        self._pinned = self.cpus
-        try:
-            os.sched_setaffinity(tid, self.cpus)
-        except OSError as exc:
-            warning = f"CPUs {sorted(self.cpus)} refused ({exc}); the kernel places the thread"
-            self.rt_warning = f"{self.rt_warning}; {warning}" if self.rt_warning else warning
-            return
-        if len(self.cpus) == 1:
-            self.core = min(self.cpus)
-
-    def shared_core(self) -> int | None:
-        """The core this loop's thread shares with :attr:`share_core_with` under SCHED_FIFO:
-        the last of :attr:`cpus`, else the last the process may use (None: no thread to share
-        it with, or a single core)."""
-        if self.share_core_with is None:
-            return None
-        cores = sorted(self.cpus or os.sched_getaffinity(0))
-        return cores[-1] if len(cores) > 1 or self.cpus else None
-
-    def spare_cpus(self, rt_priority: int) -> frozenset[int] | None:
-        """The CPUs a helper process of the host (the bag writer) keeps to while the loop
-        runs under SCHED_FIFO ``rt_priority``: every one the process may use but
-        :meth:`shared_core`. A process woken on that core (by a write of the executor's
-        thread: the kernel wakes a task where its waker runs) preempts the executor's thread,
-        which may hold the GIL the woken driver waits for: a sample late (docs/performance.md,
-        "The bag writer off the driver's core"). None: the kernel places it."""
-        core = self.shared_core() if rt_priority else None
-        spare = frozenset(os.sched_getaffinity(0)) - {core}
-        return spare if core is not None and spare else None
-
-    def _share_core(self, tid: int, other: int) -> None:
-        """Pin ``tid`` (this loop's thread) and ``other`` to :meth:`shared_core`."""
-        core = self.shared_core()
-        if core is None:
-            return
-        try:
-            os.sched_setaffinity(tid, {core})
-            os.sched_setaffinity(other, {core})
-        except OSError as exc:
-            self.rt_warning = f"could not put the executor on the driver's core ({exc})"
-            return
-        self.core = core
-        sys.setswitchinterval(min(sys.getswitchinterval(), SHARED_CORE_GIL_SWITCH_S))
 
     def _run(self, rt_priority: int) -> None:
         if rt_priority or self.cpus:
