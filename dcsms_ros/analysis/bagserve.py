@@ -16,6 +16,8 @@ the bag ends (it sends :data:`~.bagframes.CLOSE` after its own drain).
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import json
 import os
 import signal
@@ -31,6 +33,8 @@ from dcsms_ros.cdr import read_stamp
 from dcsms_ros.errors import DcsmsError
 
 #: Bytes asked of the pipe per read.
+#: ``prctl`` option (linux/prctl.h): the name of the calling thread (``comm``).
+_PR_SET_NAME = 15
 READ_BYTES = 1 << 20
 
 
@@ -142,6 +146,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_IGN)
+    with contextlib.suppress(OSError, AttributeError):  # named when its command line is gone
+        ctypes.CDLL(None).prctl(_PR_SET_NAME, b"bagserve", 0, 0, 0)
 
     def emit(value: dict[str, Any]) -> None:
         sys.stdout.write(json.dumps(value) + "\n")

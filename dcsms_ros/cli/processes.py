@@ -140,14 +140,16 @@ def _children() -> set[int]:
 
 
 def _program(pid: int) -> str:
-    """The module ``pid`` runs (``python -m``) or its program's name."""
+    """The module ``pid`` runs (``python -m``) or its program's name; once it has exited (a
+    zombie has no command line) the name it gave itself (``comm``; the bag writer's is
+    ``bagserve``)."""
     try:
         argv = Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace").split("\0")
+        if "-m" in argv[:-1]:
+            return argv[argv.index("-m") + 1]
+        return Path(argv[0]).name or Path(f"/proc/{pid}/comm").read_text().strip() or "?"
     except OSError:
         return "?"
-    if "-m" in argv[:-1]:
-        return argv[argv.index("-m") + 1]
-    return Path(argv[0]).name or "?"
 
 
 def reap_orphans(kids: Collection[Child], timeout: float = ORPHAN_TIMEOUT_S) -> list[Orphan]:
