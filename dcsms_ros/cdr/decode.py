@@ -341,17 +341,18 @@ def _check_type(msgtype: str) -> None:
 
 
 def _decode_rows(msgtype: str, rows: np.ndarray, lay: layout.Layout) -> Batch:
-    k = rows.shape[0]
-    idx = lay.const_idx
-    if not np.array_equal(rows[:, idx], np.broadcast_to(lay.template[idx], (k, idx.size))):
+    # few numpy calls: a mode switch decodes its four streams once per checkpoint, cold
+    # (array_equal and a column copy per field took ~50 us a batch there, docs/performance.md)
+    if (rows[:, lay.const_idx] != lay.const_bytes).any():
         return _slow(msgtype, [row.tobytes() for row in rows])
-    cols = {}
-    for name, (off, dtype, count) in lay.fields.items():
-        size = np.dtype(dtype).itemsize * count
-        cols[name] = np.ascontiguousarray(rows[:, off:off + size]).view(dtype).reshape(k, count)
-    stamp = cols.pop("sec")[:, 0].astype(np.int64) * NS + cols.pop("nanosec")[:, 0]
-    return Batch(stamp, {n: c.astype(np.float64, copy=False) for n, c in cols.items()},
-                 lay.frame_id, lay.names, True)
+    rec = np.ascontiguousarray(rows[:, :lay.size]).view(lay.record)[:, 0]  # trailing bytes
+    stamp = rec["sec"][:, 0].astype(np.int64) * NS + rec["nanosec"][:, 0]
+    cols = {n: rec[n].astype(np.float64) for n in lay.fields if n not in _STAMP_FIELDS}
+    return Batch(stamp, cols, lay.frame_id, lay.names, True)
+
+
+#: The stamp's fields of a layout, read into :attr:`Batch.stamp_ns`.
+_STAMP_FIELDS = ("sec", "nanosec")
 
 
 def _empty(msgtype: str) -> Batch:

@@ -79,6 +79,11 @@ class Layout:
         nor padding, nor the encapsulation options).
     const_idx : ndarray of intp
         ``flatnonzero(const)``.
+    const_bytes : ndarray of uint8
+        ``template[const_idx]``: what a message has there.
+    record : numpy.dtype
+        A structured dtype of ``size`` bytes with every numeric field at its offset: a (K,
+        size) byte matrix viewed as K records.
     segments : tuple of (int, bytes)
         The constant bytes as runs ``(offset, bytes)`` (a message matches the layout when each
         run is found at its offset).
@@ -107,9 +112,15 @@ class Layout:
         self.template = np.frombuffer(self.buf, np.uint8)
         self.const = np.array(const, dtype=bool)
         self.const_idx = np.flatnonzero(self.const)
+        self.const_bytes = self.template[self.const_idx]
         # layouts are cached and shared: their arrays must not change
         self.const.flags.writeable = self.const_idx.flags.writeable = False
+        self.const_bytes.flags.writeable = False
         self.fields = fields
+        self.record = np.dtype({
+            "names": list(fields), "offsets": [off for off, _, _ in fields.values()],
+            "formats": [(dtype, (count,)) for _, dtype, count in fields.values()],
+            "itemsize": self.size})
         self.strings = tuple(strings)
         self.counts = tuple(counts)
         # one tuple per layout: a reader hands out the same object for every message
