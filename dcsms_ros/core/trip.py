@@ -77,9 +77,11 @@ class TripMonitor:
         x = np.asarray(block, dtype=np.float64).reshape(-1, self.channels)
         if x.shape[0] == 0:
             return x
-        # a NaN or an absurd value (> 10 m/s) is a corrupt message, not instability
-        with np.errstate(invalid="ignore"):
-            x = np.where(np.abs(x) <= 10.0, x, 0.0)
+        # a NaN or an absurd value (> 10 m/s) is a corrupt message, not instability (a
+        # comparison with NaN is False and raises no floating-point flag)
+        ok = np.abs(x) <= 10.0
+        if not ok.all():
+            x = np.where(ok, x, 0.0)
         if not self._started:
             # start the band-pass in the steady state of the first sample: a velocity offset
             # (sensor drift) must not ring through it as a false trip at start or after a reset
@@ -100,9 +102,13 @@ class TripMonitor:
         k = y.shape[0]
         y = y[-self.window:]
         n = y.shape[0]
-        idx = (self._pos + np.arange(n)) % self.window
-        self._ring[idx] = y * y
-        self._pos = (self._pos + n) % self.window
+        # the ring as one or two slices (a checkpoint's block: no index array)
+        pos, w = self._pos, self.window
+        head = min(n, w - pos)
+        self._ring[pos:pos + head] = y[:head] * y[:head]
+        if head < n:
+            self._ring[:n - head] = y[head:] * y[head:]
+        self._pos = (pos + n) % w
         self.count += k
         filled = min(self.count, self.window)
         self.rms = np.sqrt(self._ring.sum(axis=0) / filled)
