@@ -50,6 +50,7 @@ class _CompiledStep(_Loop):
         self._k_axes = self.axes.astype(np.int64)
         self._ub = np.zeros(self._k_axes.shape[0])
         self._w = np.zeros(self.dof)
+        self._x = np.zeros(self.dof)  # step_floats's input
         self._safe = float(self.allocator.safe_wrench)
         z, before = self._sos[5], self._saved
         kept = z.copy(), before.copy()  # compile (or load) now, not at the first sample
@@ -80,8 +81,22 @@ class _CompiledStep(_Loop):
         return self._allocated(w.copy())
 
     def step_floats(self, x: Sequence[float]) -> list[float]:
-        """As :meth:`.FeedbackLoop.step_floats`, through the kernel."""
-        return self.step(np.array(x, dtype=np.float64)).tolist()
+        """As :meth:`.FeedbackLoop.step_floats`, through the kernel (a node's sample: the floats
+        into the loop's own input array, no array made or copied on the usual path)."""
+        xs = self._x
+        if len(x) != xs.shape[0]:
+            return super().step_floats(x)  # the object's floats decide (as :meth:`step`)
+        xs[:] = x
+        w = self._w
+        got = self._kernel(self._sos, self._saved, self._k_axes, self._ub, xs,
+                           self.fader.step(), self._safe, w)
+        if got == self._done:
+            self.last_saturated = 0
+            return w.tolist()
+        if got == self._nonfinite:
+            return self._rejected().tolist()
+        self.last_saturated = 0
+        return self._allocated(w.copy()).tolist()
 
 
 class CompiledFeedbackLoop(_CompiledStep, FeedbackLoop):

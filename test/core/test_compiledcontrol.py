@@ -97,6 +97,9 @@ def test_a_twist_of_another_shape_is_the_object_paths() -> None:
         want = a.step(twist)
         assert_array_equal(want, b.step(twist))
         _same(a, b, str(twist.shape))
+        floats = tuple(twist.tolist())  # a node's floats of another count
+        assert b.step_floats(floats) == a.step_floats(floats)
+        _same(a, b, f"floats {len(floats)}")
     with pytest.raises(TypeError) as want_err:
         a.step(np.array([[1e-6]]))
     with pytest.raises(TypeError) as got_err:
