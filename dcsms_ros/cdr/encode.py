@@ -5,10 +5,9 @@ the template's constant pieces, the stamp and the values with one :mod:`struct` 
 of the template packed in place took two calls and two copies more: 450 against 190 ns per
 TwistStamped), and the node publishes the bytes: no message object is built (rclpy's objects
 cost more than the numbers they carry, measured per TwistStamped: building it 5 us -> 1 us,
-publishing 11.5 -> 7.3 us). Per batch, K
-messages are one (K, R) uint8 matrix whose columns are written as numpy views, for the bag
-writers. The bytes equal rosbags' serialisation, and rclpy's except for padding, which rmw
-leaves uninitialised (tested).
+publishing 11.5 -> 7.3 us). Per batch, K messages are one (K, R) uint8 matrix whose columns are
+written as numpy views, for the bag writers. The bytes equal rosbags' serialisation, and
+rclpy's except for padding, which rmw leaves uninitialised (tested).
 
 Units: stamps in integer ns; twists m/s and rad/s, wrenches N and N*m, JointState values as
 the channel's unit (geophone velocity m/s, actuator force N).

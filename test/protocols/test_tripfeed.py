@@ -68,28 +68,31 @@ def test_reset_resumes_at_a_checkpoint_block() -> None:
     assert feed.checker.k == 60 and feed.judged_ns == 259 * NS  # fed from sample 200 on
 
 
+@pytest.mark.parametrize("both", [False, True])
 @pytest.mark.parametrize("lockstep", [True, False])
 def test_blocks_with_repeats_and_a_lost_sample_give_the_rows_of_every_sample(
-        lockstep: bool) -> None:
+        lockstep: bool, both: bool) -> None:
     """Drained queues (blocks that repeat samples) and messages one by one give the checker
     every sample's rows; a sample lost on one stage is a gap in lockstep (the row is left
-    out) and a zero in real time."""
+    out) and a zero in real time. Lost on both stages (the streams keep the same stamps,
+    which lockstep takes as they are) it is a gap either way."""
     v = _series()[:400]
-    lost = 123  # stage 2 never gets this sample
+    lost = 123  # stage 2 (and with ``both`` stage 1) never gets this sample
     stamps = np.arange(v.shape[0]) * NS
     feeds = [TripFeed(TripChecker(ControlConfig(), RATE, 2, 1), RATE) for _ in range(2)]
     one, blk = feeds
     for k in range(v.shape[0]):
-        one.add_block(0, [int(stamps[k])], v[k, 0])
+        if k != lost or not both:
+            one.add_block(0, [int(stamps[k])], v[k, 0])
         if k != lost:
             one.add_block(1, [int(stamps[k])], v[k, 1])
     for j in range(0, v.shape[0], 64):
         sl = slice(max(j - 3, 0), j + 64)  # each block repeats the last 3 of the one before
-        blk.add_block(0, stamps[sl], v[sl, 0])
         keep = [k for k in range(sl.start, min(sl.stop, v.shape[0])) if k != lost]
+        blk.add_block(0, stamps[keep if both else sl], v[keep if both else sl, 0])
         blk.add_block(1, stamps[keep], v[keep, 1])
     want = v.copy()
-    if lockstep:
+    if lockstep or both:
         want = np.delete(want, lost, axis=0)
         want_stamps = np.delete(stamps, lost)
     else:
@@ -100,4 +103,4 @@ def test_blocks_with_repeats_and_a_lost_sample_give_the_rows_of_every_sample(
         got, rows = feed.take(through, lag_ns=0)
         np.testing.assert_array_equal(got, want_stamps)
         np.testing.assert_array_equal(rows, want)
-        assert feed.gaps == (1 if lockstep else 0) and feed.judged_ns == stamps[-1]
+        assert feed.gaps == (1 if lockstep or both else 0) and feed.judged_ns == stamps[-1]
