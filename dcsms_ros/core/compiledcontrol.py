@@ -66,19 +66,11 @@ class _CompiledStep(_Loop):
     def step(self, twist: ArrayLike) -> Array:
         """As :meth:`.FeedbackLoop.step` (a new array, the same values and counters)."""
         x = np.asarray(twist, dtype=np.float64)
-        w = self._w
-        if x.shape != w.shape or not x.flags.c_contiguous:
+        if x.shape != self._w.shape or not x.flags.c_contiguous:
             # the object's floats (its step would come back here through step_floats)
             return np.array(super().step_floats(x.tolist()))
-        got = self._kernel(self._sos, self._saved, self._k_axes, self._ub, x,
-                           self.fader.step(), self._safe, w)
-        if got == self._done:
-            self.last_saturated = 0
-            return w.copy()
-        if got == self._nonfinite:
-            return self._rejected()
-        self.last_saturated = 0
-        return self._allocated(w.copy())
+        w = self._run(x)
+        return w.copy() if w is self._w else w
 
     def step_floats(self, x: Sequence[float]) -> list[float]:
         """As :meth:`.FeedbackLoop.step_floats`, through the kernel (a node's sample: the floats
@@ -87,16 +79,21 @@ class _CompiledStep(_Loop):
         if len(x) != xs.shape[0]:
             return super().step_floats(x)  # the object's floats decide (as :meth:`step`)
         xs[:] = x
+        return self._run(xs).tolist()
+
+    def _run(self, x: Array) -> Array:
+        """The kernel on twist ``x`` (dof,): the wrench, the loop's own output array on the
+        usual sample (the caller copies or converts it), else a new one."""
         w = self._w
-        got = self._kernel(self._sos, self._saved, self._k_axes, self._ub, xs,
+        got = self._kernel(self._sos, self._saved, self._k_axes, self._ub, x,
                            self.fader.step(), self._safe, w)
         if got == self._done:
             self.last_saturated = 0
-            return w.tolist()
+            return w
         if got == self._nonfinite:
-            return self._rejected().tolist()
+            return self._rejected()
         self.last_saturated = 0
-        return self._allocated(w.copy()).tolist()
+        return self._allocated(w.copy())
 
 
 class CompiledFeedbackLoop(_CompiledStep, FeedbackLoop):
