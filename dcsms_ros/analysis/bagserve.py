@@ -33,9 +33,9 @@ from dcsms_ros.cdr import read_stamp
 from dcsms_ros.errors import DcsmsError
 
 #: Bytes asked of the pipe per read.
+READ_BYTES = 1 << 20
 #: ``prctl`` option (linux/prctl.h): the name of the calling thread (``comm``).
 _PR_SET_NAME = 15
-READ_BYTES = 1 << 20
 
 
 class Served:

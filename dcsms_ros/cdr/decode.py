@@ -340,6 +340,10 @@ def _check_type(msgtype: str) -> None:
         raise ValueError(f"no batch decoder for {msgtype}")
 
 
+#: The stamp's fields of a layout, read into :attr:`Batch.stamp_ns`.
+_STAMP_FIELDS = ("sec", "nanosec")
+
+
 def _decode_rows(msgtype: str, rows: np.ndarray, lay: layout.Layout) -> Batch:
     # few numpy calls: a mode switch decodes its four streams once per checkpoint, cold
     # (array_equal and a column copy per field took ~50 us a batch there, docs/performance.md)
@@ -349,10 +353,6 @@ def _decode_rows(msgtype: str, rows: np.ndarray, lay: layout.Layout) -> Batch:
     stamp = rec["sec"][:, 0].astype(np.int64) * NS + rec["nanosec"][:, 0]
     cols = {n: rec[n].astype(np.float64) for n in lay.fields if n not in _STAMP_FIELDS}
     return Batch(stamp, cols, lay.frame_id, lay.names, True)
-
-
-#: The stamp's fields of a layout, read into :attr:`Batch.stamp_ns`.
-_STAMP_FIELDS = ("sec", "nanosec")
 
 
 def _empty(msgtype: str) -> Batch:

@@ -14,16 +14,16 @@ import threading
 
 from dcsms_ros.ros.cpulatency import CpuLatencyRequest, hold_from_env
 
-#: The same, once the composed driver and the executor's thread share one core
-#: (:meth:`ThreadPlacement.prioritize`). There the executor can hold the GIL only while the driver
-#: sleeps, and the woken driver waits one interval before Python asks the holder to let go:
-#: 200 us at every sample during an executor burst (the trip judge, every 50 ms). At 50 us, 21
-#: alternating pairs of composed 20 s runs: late samples fewer in 15 (5,317 -> 3,663 in all);
-#: samples published > 250 us behind their deadline within the judge's 11 ms window fewer in
-#: 17 of 18 (2.0-14x). Not on separate cores (one process per node), where both threads run at
-#: once and nothing showed a gain: 50 us had fewer late samples in 3 of 6 pairs. 20 us was no
-#: better than 200 us (composed, 4 runs). docs/performance.md, "The GIL switch interval on a
-#: shared core".
+#: Python's GIL switch interval once the composed driver and the executor's thread share one
+#: core (:meth:`ThreadPlacement.prioritize`; apart: ``hotloop.GIL_SWITCH_S``). There the
+#: executor can hold the GIL only while the driver sleeps, and the woken driver waits one
+#: interval before Python asks the holder to let go: 200 us at every sample during an executor
+#: burst (the trip judge, every 50 ms). At 50 us, 21 alternating pairs of composed 20 s runs:
+#: late samples fewer in 15 (5,317 -> 3,663 in all); samples published > 250 us behind their
+#: deadline within the judge's 11 ms window fewer in 17 of 18 (2.0-14x). Not on separate cores
+#: (one process per node), where both threads run at once and nothing showed a gain: 50 us had
+#: fewer late samples in 3 of 6 pairs. 20 us was no better than 200 us (composed, 4 runs).
+#: docs/performance.md, "The GIL switch interval on a shared core".
 SHARED_CORE_GIL_SWITCH_S = 5e-5
 
 
@@ -69,8 +69,12 @@ class ThreadPlacement:
         if self.cpu_latency is None:
             self.cpu_latency, warning = hold_from_env()
             if warning:
-                self.rt_warning = f"{self.rt_warning}; {warning}" if self.rt_warning else warning
+                self._warn(warning)
         return self.rt_warning
+
+    def _warn(self, warning: str) -> None:
+        """Add ``warning`` to :attr:`rt_warning` (each refusal is reported, none replaced)."""
+        self.rt_warning = f"{self.rt_warning}; {warning}" if self.rt_warning else warning
 
     def _pin(self, tid: int) -> None:
         if self._pinned == self.cpus:  # the thread's start and the host may both ask
@@ -79,8 +83,7 @@ class ThreadPlacement:
         try:
             os.sched_setaffinity(tid, self.cpus)
         except OSError as exc:
-            warning = f"CPUs {sorted(self.cpus)} refused ({exc}); the kernel places the thread"
-            self.rt_warning = f"{self.rt_warning}; {warning}" if self.rt_warning else warning
+            self._warn(f"CPUs {sorted(self.cpus)} refused ({exc}); the kernel places the thread")
             return
         if len(self.cpus) == 1:
             self.core = min(self.cpus)
@@ -114,7 +117,7 @@ class ThreadPlacement:
             os.sched_setaffinity(tid, {core})
             os.sched_setaffinity(other, {core})
         except OSError as exc:
-            self.rt_warning = f"could not put the executor on the driver's core ({exc})"
+            self._warn(f"could not put the executor on the driver's core ({exc})")
             return
         self.core = core
         sys.setswitchinterval(min(sys.getswitchinterval(), SHARED_CORE_GIL_SWITCH_S))
