@@ -68,6 +68,7 @@ def pooled(runs: list[dict[str, Any]]) -> tuple[dict[str, Any], dict[str, float]
     r = {"t": np.concatenate(t), "rate_hz": runs[0]["rate_hz"], "cpu": cpu, "latency_s": lat,
          "overruns": sum(r["overruns"] for r in runs), "late": sum(r["late"] for r in runs),
          "stale": sum(r["stale"] for r in runs), "controllers": runs[0]["controllers"],
+         "woke_late": sum(r.get("woke_late", 0) for r in runs),
          "published": None, "recorded": None}
     return r, s
 
@@ -99,7 +100,10 @@ def _why(r: dict[str, Any]) -> str:
             "Python in one thread), so a stall of the core or of the thread longer than the "
             "rest of a period makes a sample late, and the late samples come as a few bursts "
             "per run (the runs above); an ideal thread of the same CPU lost what the next row "
-            "shows in the minutes after each run (docs/performance.md, the machine's floor)")
+            "shows in the minutes after each run (docs/performance.md, the machine's floor); "
+            f"{r['woke_late']} of the {r['late']} late samples passed while the driver was "
+            "not run after its wake-up time (a perf trace showed whole-machine pauses of ~3 ms: "
+            "docs/performance.md, who makes composed samples late)")
 
 
 def rows(secs: float, runs: list[dict[str, Any]], floors: list[dict[str, Any]],
@@ -113,6 +117,7 @@ def rows(secs: float, runs: list[dict[str, Any]], floors: list[dict[str, Any]],
     forces = sum(f for _, _, f in each)
     late = r_all["late"] / deadlines + r_all["stale"] / forces
     met = sum(x <= LATE_MAX for x, _, _ in each)
+    own = (r_all["late"] - r_all["woke_late"]) / deadlines + r_all["stale"] / forces
     lo, hi = (b + r_all["stale"] / forces for b in count_interval(r_all["late"], deadlines))
     per_run = " / ".join(f"{x:.5f}" for x, _, _ in each)
     per_floor = " / ".join(f"{f['late_ratio']:.5f}" for f in floors)
@@ -130,8 +135,10 @@ def rows(secs: float, runs: list[dict[str, Any]], floors: list[dict[str, Any]],
                 f"Poisson interval of the pooled figure {lo:.5f}-{hi:.5f}; the runs scatter "
                 f"more); per run {per_run} (median "
                 f"{statistics.median(x for x, _, _ in each):.5f}), within {LATE_MAX:g} in "
-                f"{met} of {len(runs)}; the floor after each run {per_floor}; the machine's "
-                f"steal time in each run {steal} %; "
+                f"{met} of {len(runs)}; of the late, {r_all['woke_late']} passed while the "
+                f"driver, asleep until its next deadline, was not run after its wake-up time "
+                f"(the rest, missed while it ran, with the stale forces: {own:.5f}); the floor "
+                f"after each run {per_floor}; the machine's steal time in each run {steal} %; "
                 f"{recorded}; --rt-priority 50" + (_why(r_all) if late > LATE_MAX else "")})
     wake = "/".join(f"{q:.0f}" for q in floors[-1]["wake_us"])
     work = " / ".join(f"{f['work_us']:.0f}" for f in floors)

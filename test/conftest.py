@@ -12,7 +12,9 @@ Markers (``pytest -m unit`` runs in seconds without DDS; ``make test`` runs ever
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import threading
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -89,6 +91,31 @@ def ctx(domain: int) -> Iterator[Context]:
     rclpy.init(args=[], context=c, domain_id=domain)
     yield c
     rclpy.try_shutdown(context=c)
+
+
+@pytest.fixture
+def gil_holder() -> Iterator[Callable[[float], list[float]]]:
+    """``hold(after_s)``: a thread that, ``after_s`` s from now, holds the GIL for 50-150 ms in
+    one C call (``sum`` over a range checks for no switch request); returns the list its
+    start and end (monotonic s) go into. Every holder is joined at the end of the test."""
+    threads: list[threading.Thread] = []
+
+    def hold(after_s: float) -> list[float]:
+        span: list[float] = []
+
+        def run() -> None:
+            time.sleep(after_s)
+            span.append(time.monotonic())
+            sum(range(15_000_000))
+            span.append(time.monotonic())
+
+        threads.append(threading.Thread(target=run, name="gil-holder"))
+        threads[-1].start()
+        return span
+
+    yield hold
+    for t in threads:
+        t.join()
 
 
 @pytest.fixture

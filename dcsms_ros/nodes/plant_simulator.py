@@ -178,7 +178,7 @@ class PlantSimulatorNode(GraphNode, Hosted):
             return self._lockstep(time.monotonic())
         for drain, on_force in self._force_subs:
             drain(on_force)
-        self._realtime(time.monotonic())
+        self._realtime(time.monotonic(), self.hot.woke_late_s)
         return self.pacer.wait_s(time.monotonic(), self.sim.k)
 
     def _lockstep(self, now: float) -> float | None:
@@ -267,8 +267,8 @@ class PlantSimulatorNode(GraphNode, Hosted):
             self._complete()
             self._pump()
 
-    def _realtime(self, now: float) -> None:
-        for _ in range(self.pacer.due(now, self.sim.k)):
+    def _realtime(self, now: float, woke_late_s: float = 0.0) -> None:
+        for _ in range(self.pacer.due(now, self.sim.k, woke_late_s)):
             k = self.sim.k
             self.io.publish_sample(k)
             # forces are aged at sample k's publication, on the clock of the times they count

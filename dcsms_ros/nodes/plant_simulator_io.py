@@ -310,7 +310,8 @@ class PlantIO:
         wall = time.monotonic() - self._t_run
         self._cpu[1] = time.process_time()
         pacer = self.node.pacer
-        dropped = (f", {pacer.late} late, {pacer.overruns} dropped as overruns"
+        dropped = (f", {pacer.late} late, {pacer.overruns} dropped as overruns ("
+                   f"{pacer.woke_late} of them while the loop waited to run)"
                    if pacer.late or pacer.overruns else "")
         self.node.get_logger().info(
             f"finished {self.sim.k} samples ({self.sim.t:.3f} s simulated) in {wall:.2f} s "
@@ -343,6 +344,7 @@ class PlantIO:
                   "latency_p50_ms": f"{self.latency_hist.quantile(0.5) * 1e3:.4f}",
                   "latency_p99_ms": f"{self.latency_hist.quantile(0.99) * 1e3:.4f}",
                   "overruns": nd.pacer.overruns, "late_steps": nd.pacer.late,
+                  "woke_late_steps": nd.pacer.woke_late,
                   "nonfinite_inputs": self.sim.nonfinite_inputs,
                   "rejected_inputs": nd.force_guard.rejected,
                   "saturations": self.sim.saturations, "finished": nd.finished,
@@ -363,6 +365,7 @@ class PlantIO:
                 "t_pub_ns": np.asarray(self._t_pub, dtype=np.int64),
                 "cpu_s": np.asarray(self._cpu), "rate_hz": self.sim.cfg.plant.rate_hz,
                 "overruns": self.node.pacer.overruns, "late_steps": self.node.pacer.late,
+                "woke_late_steps": self.node.pacer.woke_late,
                 "stale_samples": sum(self.node.held.stale_samples.values())}
             arrays.update({f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
                            for c, v in self._lat.items()})

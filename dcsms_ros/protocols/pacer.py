@@ -7,7 +7,11 @@ run (docs/performance.md). A sample computed once the next one is due already
 (the plant woke more than a period late and catches up) is *late*: it reaches the controllers
 after its deadline, and a keep-last-1 reader then answers only the newest of the burst. A plant
 that fell more than ``max_burst`` samples behind does not catch up in a burst: the backlog is
-dropped (counted as overruns) and the schedule moves on from now. Inputs (force commands) are
+dropped (counted as overruns) and the schedule moves on from now. Of those missed deadlines,
+the ones the loop's own late wake-up missed are counted apart (:attr:`Pacer.woke_late`): the
+loop slept to a deadline and got the CPU after it, so a faster loop would have missed them as
+well (on this package's virtual machine, whole-machine pauses of ~3 ms; docs/performance.md,
+"Who makes composed samples late"). Inputs (force commands) are
 *held*: the newest value of each is used until it is older than ``timeout_s``, then it counts
 as zero (stale).
 """
@@ -35,18 +39,26 @@ class Pacer:
         self.overruns = 0
         #: samples computed in a catch-up burst, after the next sample was due
         self.late = 0
+        #: of :attr:`late` and :attr:`overruns`, those that were not yet missed when the loop
+        #: asked to wake (:meth:`due`'s ``woke_late_s``)
+        self.woke_late = 0
 
     def start(self, now: float) -> None:
         """Sample 0 is due at ``now`` (s)."""
         self.t0 = now
         self.started = True
 
-    def due(self, now: float, k: int) -> int:
+    def due(self, now: float, k: int, woke_late_s: float = 0.0) -> int:
         """How many samples to compute at ``now`` (s) when ``k`` are done; the first call of a
-        pacer not started makes sample ``k`` due at ``now``."""
+        pacer not started makes sample ``k`` due at ``now``. ``woke_late_s`` (s): how long
+        after the time it asked to wake the loop got to run (0: it did not sleep, or woke in
+        time); the missed deadlines between those two times count in :attr:`woke_late`."""
         if not self.started:
             self.start(now - k / self.rate)
         due = int((now - self.t0) * self.rate) + 1 - k
+        if due > 1 and woke_late_s > 0.0:
+            asked = int((now - woke_late_s - self.t0) * self.rate) + 1 - k
+            self.woke_late += due - max(asked, 1)
         if due > self.max_burst:
             # too far behind to catch up without a burst: drop the backlog, count it
             self.overruns += due - 1

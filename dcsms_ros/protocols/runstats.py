@@ -115,6 +115,11 @@ class RunSummary:
         Share (0 to 1) of the machine's CPU time its hypervisor took while the graph ran
         (steal time, :mod:`dcsms_ros.cli.hoststeal`; None: not known). In :meth:`to_dict`, and
         in the late-sample warning from :data:`STEAL_NOTE` on.
+    woke_late : int
+        Real time: of ``late``, the deadlines that passed while the plant's loop, asleep until
+        its next one, was not run (the OS or the hypervisor, or a thread of its process
+        holding the GIL: :attr:`dcsms_ros.protocols.pacer.Pacer.woke_late`); the rest the
+        loop missed while it was running (its own work). In :meth:`to_dict` and the warning.
     """
 
     samples: int
@@ -130,6 +135,7 @@ class RunSummary:
     overruns: int = 0
     delayed: int = 0
     steal: float | None = None
+    woke_late: int = 0
 
     @property
     def late_fraction(self) -> float:
@@ -175,6 +181,9 @@ class RunSummary:
                 out.append(f"{100.0 * self.late_fraction:.3g} % of the samples missed their "
                            f"deadline: this machine did not keep the graph in real time, and "
                            f"the loop that ran had more delay than the configured one")
+                if self.woke_late:
+                    out[-1] += (f"; {self.woke_late} of the {self.late} passed while the "
+                                f"plant's loop waited for the CPU after its wake-up time")
                 if self.steal is not None and self.steal >= STEAL_NOTE:
                     out[-1] += (f" (its hypervisor took {100.0 * self.steal:.3g} % of the "
                                 f"machine's CPU meanwhile: steal time, a host busy with other "
@@ -246,7 +255,8 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
                       recorded=recorded, samples_x_streams=scale,
                       lockstep=plant.get("schedule", "lockstep") == "lockstep",
                       published=sent, overruns=int(plant.get("overruns", "0")),
-                      delayed=int(plant.get("delayed_samples", "0")), steal=steal)
+                      delayed=int(plant.get("delayed_samples", "0")), steal=steal,
+                      woke_late=int(plant.get("woke_late_steps", "0")))
 
 
 __all__ = ["LATE_WARN", "STALE_WARN", "STEAL_NOTE", "LatencyHistogram", "RunSummary", "summarize"]

@@ -98,7 +98,9 @@ class HotLoop(ThreadPlacement):
     ticks; it waits on a wait set of all the subscriptions and a guard condition for at most
     the shortest time a tick asked for (on its wake-up pipe alone when it serves no DDS
     subscription: composed, with every topic in-process). Its priority and CPUs:
-    :class:`~.placement.ThreadPlacement`.
+    :class:`~.placement.ThreadPlacement`. After a wait it knows how late it got to run
+    (:attr:`woke_late_s`), which the plant's pacer uses to tell the samples its own late
+    wake-up made late from the others (:attr:`~dcsms_ros.protocols.pacer.Pacer.woke_late`).
     """
 
     def __init__(self, context: Context, name: str) -> None:
@@ -113,6 +115,10 @@ class HotLoop(ThreadPlacement):
         #: Called (on the loop's thread) once it failed: the host wakes its spin loop.
         self.on_error: Callable[[], object] | None = None
         self.wakeups = 0
+        #: How long after the time its last wait was to end the thread ran again (s; 0 when
+        #: it woke before that, or went on without waiting): the OS or the hypervisor did not
+        #: run it, or another thread of the process held the GIL.
+        self.woke_late_s = 0.0
         self._subs: list[Subscription] = []
         self._serving: list[Served] = []
         self._prioritized = threading.Event()
@@ -229,15 +235,18 @@ class HotLoop(ThreadPlacement):
             handles = [s.handle for s in subs]
             timeout = IDLE_S
             while not self._stop:
+                self.woke_late_s = 0.0
                 if (bus is None or not bus.pending) and not handles:
                     # a wake() from now on is seen by the next wait, and what an earlier one
                     # announced is delivered by the pass below
+                    end = monotonic() + timeout
                     waits.sleep(timeout)
-                    self.wakeups += 1
+                    self._woke(end)
                     if self._stop:
                         break
                 elif lanes is not None and lanes.wait(timeout):
-                    self.wakeups += 1
+                    self.wakeups += 1  # the lanes time their wait (LaneWait.woke_late_s)
+                    self.woke_late_s = lanes.woke_late_s
                     if self._stop:
                         break
                 elif bus is None or not bus.pending:  # else go on delivering at once
@@ -247,8 +256,9 @@ class HotLoop(ThreadPlacement):
                     for h in handles:
                         ws.add_subscription(h)
                     ws.add_guard_condition(guard)
+                    end = monotonic() + timeout
                     ws.wait(max(int(timeout * 1e9), 0))
-                    self.wakeups += 1
+                    self._woke(end)
                     if self._stop:
                         break
                     if subs and not ws.get_ready_entities("subscription") and \
@@ -281,6 +291,12 @@ class HotLoop(ThreadPlacement):
                         timeout = min(timeout, max(nxt, 0.0))
                     if lazy[i]:
                         dues[i] = now + (IDLE_S if nxt is None else max(nxt, 0.0))
+
+
+    def _woke(self, end: float) -> None:
+        """A wait that was to end at ``end`` (monotonic s) returned."""
+        self.wakeups += 1
+        self.woke_late_s = max(time.monotonic() - end, 0.0)
 
 
 class DrivenContext(Context):

@@ -119,6 +119,12 @@ class HotPath(DetachedReaders):
         return self.loop.error if self.loop is not None else None
 
     @property
+    def woke_late_s(self) -> float:
+        """How late the loop serving this path ran after its last wait (s; 0 when it woke in
+        time, or the path is not served by a loop): :attr:`.hotloop.HotLoop.woke_late_s`."""
+        return self.loop.woke_late_s if self.loop is not None else 0.0
+
+    @property
     def driven(self) -> bool:
         """True when a composed process's driver loop serves this path."""
         return self.loop is not None and not self._own

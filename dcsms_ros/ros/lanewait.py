@@ -55,6 +55,8 @@ class LaneWait:
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._fds = [self._wake_r, *(fd for p in self.paths for fd in p.lane_fds())]
         self._mode, self._mode_until = DDS, -1.0
+        #: how long after its timeout the last :meth:`wait` returned (s; 0: before it)
+        self.woke_late_s = 0.0
 
     def __bool__(self) -> bool:
         return bool(self.paths)
@@ -85,6 +87,7 @@ class LaneWait:
         if mode != LANES:
             timeout = min(timeout, DDS_POLL_S)
         ready, _, _ = select.select(self._fds, (), (), max(timeout, 0.0))
+        self.woke_late_s = max(time.monotonic() - now - max(timeout, 0.0), 0.0)
         if self._wake_r in ready:
             with contextlib.suppress(OSError):
                 os.read(self._wake_r, 4096)

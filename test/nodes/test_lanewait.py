@@ -114,6 +114,28 @@ def test_a_lanes_wait_ends_at_a_message_a_wake_or_its_timeout_a_mixed_one_polls_
     w.wake()  # after close: nothing to write to, no error
 
 
+def test_a_wait_knows_how_long_after_its_timeout_it_got_to_run(lane, gil_holder):
+    """``woke_late_s``: 0 for a wait that a message or its timeout ended in time; for one
+    whose thread got the GIL only after another thread's long C call, the time from its
+    timeout to then."""
+    path = _Path(lane)
+    path.state = LANES
+    w = LaneWait([path], serving=1)
+    try:
+        w.wake()
+        assert w.wait(5.0) and w.woke_late_s == 0.0  # ended long before its timeout
+        span = gil_holder(0.005)
+        t0 = time.monotonic()
+        assert w.wait(0.02)
+        late = w.woke_late_s
+        while len(span) < 2:  # the holder's end comes after the wait got the GIL
+            time.sleep(0.001)
+        assert span[1] - t0 > 0.03  # it held the GIL well past the timeout
+        assert span[0] - t0 - 0.02 < late <= span[1] - t0 - 0.02
+    finally:
+        w.close()
+
+
 def test_the_pipe_is_closed(lane):
     path = _Path(lane)
     w = LaneWait([path], serving=1)

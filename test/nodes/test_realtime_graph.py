@@ -149,6 +149,7 @@ def test_recorded_real_time_bag_starts_at_sample_zero(domain: int, cfg: SystemCo
     assert f"recording {topics.SENSORS_RAW}" not in logs.joinpath("recorder.log").read_text()
     summary = json.loads(logs.joinpath("summary.json").read_text())
     assert summary["recorded"] == summary["published"] > 0, summary
+    assert 0 <= summary["woke_late"] <= summary["late"], summary
     got = _read(bag)
     meta = yaml.safe_load(bag.joinpath("metadata.yaml").read_text())["rosbag2_bagfile_information"]
     published = json.loads(meta["custom_data"]["dcsms_ros.published"])

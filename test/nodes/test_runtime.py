@@ -40,6 +40,39 @@ def test_a_hot_loop_shortens_the_gil_switch_interval(ctx) -> None:
         node.destroy_node()
 
 
+def test_a_hot_loop_knows_how_late_it_got_to_run_after_a_wait(ctx, gil_holder) -> None:
+    """A tick that asks for 2 ms sleeps sees ``woke_late_s`` near 0 at most wake-ups, and at
+    the one after another thread's long C call took the GIL through the sleep's end, the time
+    from that end until the holder let go (the loop ran then)."""
+    node = Node("woke_late_probe", context=ctx)
+    hot = HotPath(node, threading.Lock())
+    seen: list[tuple[float, float]] = []
+
+    def tick() -> float:
+        seen.append((time.monotonic(), hot.woke_late_s))
+        return 0.002
+
+    hot.set_tick(tick)
+    try:
+        hot.start()
+        time.sleep(0.2)
+        span = gil_holder(0.0)
+        time.sleep(0.2)
+        while len(span) < 2:
+            time.sleep(0.001)
+    finally:
+        hot.stop()
+        node.destroy_node()
+    assert span[1] - span[0] > 0.03
+    before = [w for t, w in seen if t < span[0]]
+    assert len(before) > 20 and sorted(before)[len(before) // 2] < 1e-3
+    # the first tick after the hold woke late by about what was left of the hold after its
+    # sleep's end (within one 2 ms sleep of the hold's start: the holder may have taken the
+    # GIL just after that end, and noted its start a little later)
+    t, late = next((t, w) for t, w in seen if t >= span[0])
+    assert span[1] - span[0] - 0.005 < late <= t - span[0] + 0.003, (late, span, t)
+
+
 def test_a_driven_context_serves_its_nodes_hot_paths_in_one_thread(ctx, domain: int) -> None:
     """Composed: the hot paths of the nodes on a DrivenContext are its driver's, and a message
     one of them publishes is answered and taken back in the driver thread; a node on a plain

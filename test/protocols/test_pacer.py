@@ -57,6 +57,44 @@ def test_late_counts_the_samples_computed_after_the_next_was_due(seed: int) -> N
     assert p.late == late
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_woke_late_counts_the_deadlines_missed_after_the_loop_asked_to_wake(seed: int) -> None:
+    """A loop that asks to wake at a time of its choice and gets the CPU later: of its late
+    samples, ``woke_late`` counts those whose following sample fell due between the time it
+    asked for and the time it ran (computed here sample by sample)."""
+    rng = np.random.default_rng(seed)
+    rate, t0 = 2000.0, 20.0
+    p = Pacer(rate, max_burst=1000)
+    p.start(t0)
+    k = late = woke = 0
+    asked = now = t0
+    for _ in range(3000):
+        for _ in range(p.due(now, k, now - asked)):
+            nxt = t0 + (k + 1) / rate
+            late += now >= nxt
+            woke += asked < nxt <= now
+            k += 1
+        busy = now + rng.exponential(0.1e-3)  # the loop's own work may overrun a deadline
+        asked = max(busy, t0 + k / rate - rng.uniform(0.0, 0.1e-3))
+        now = asked + (rng.exponential(2e-3) if rng.random() < 0.05 else 20e-6)
+    assert p.overruns == 0 and 0 < woke < late < k
+    assert (p.late, p.woke_late) == (late, woke)
+
+
+def test_a_loop_that_woke_in_time_has_no_late_wake_ups() -> None:
+    """Woken in time, a loop that falls behind by its own work counts no late wake-up; a
+    backlog dropped after a late wake-up counts there too."""
+    p = Pacer(1000.0, max_burst=20)
+    p.start(0.0)
+    assert p.due(0.0105, 0) == 11 and p.late == 10 and p.woke_late == 0
+    assert p.due(0.0155, 11, 0.0) == 5 and p.woke_late == 0
+    # asked to wake at 18.1 ms, when its own work had missed 2 deadlines already
+    assert p.due(0.0185, 16, woke_late_s=0.0004) == 3 and p.late == 16 and p.woke_late == 0
+    # asked for 19.2 ms, ran at 50.5 ms: 31 deadlines passed meanwhile, dropped
+    assert p.due(0.0505, 19, woke_late_s=0.0313) == 1
+    assert p.overruns == 31 and p.woke_late == 31
+
+
 def test_held_inputs_go_stale_and_count_it_once() -> None:
     """A force older than the timeout is zero; each fresh -> stale transition is one event."""
     h = HeldInputs(["a", "b"], timeout_s=0.01, zero=0.0)
