@@ -9,9 +9,9 @@ after its deadline, and a keep-last-1 reader then answers only the newest of the
 that fell more than ``max_burst`` samples behind does not catch up in a burst: the backlog is
 dropped (counted as overruns) and the schedule moves on from now. Of those missed deadlines,
 the ones the loop's own late wake-up missed are counted apart (:attr:`Pacer.woke_late`): the
-loop slept to a deadline and got the CPU after it, so a faster loop would have missed them as
-well (on this package's virtual machine, whole-machine pauses of ~3 ms; docs/performance.md,
-"Who makes composed samples late"). Inputs (force commands) are
+loop slept to a deadline and got the CPU after it, so a loop with no work at all would have
+missed them too (on this package's virtual machine, mostly whole-machine pauses of ~3 ms;
+docs/performance.md, "Who makes composed samples late"). Inputs (force commands) are
 *held*: the newest value of each is used until it is older than ``timeout_s``, then it counts
 as zero (stale).
 """

@@ -117,7 +117,8 @@ class HotLoop(ThreadPlacement):
         self.wakeups = 0
         #: How long after the time its last wait was to end the thread ran again (s; 0 when
         #: it woke before that, or went on without waiting): the OS or the hypervisor did not
-        #: run it, or another thread of the process held the GIL.
+        #: run it, another real-time thread had its core, or another thread of the process
+        #: held the GIL.
         self.woke_late_s = 0.0
         self._subs: list[Subscription] = []
         self._serving: list[Served] = []
@@ -291,7 +292,6 @@ class HotLoop(ThreadPlacement):
                         timeout = min(timeout, max(nxt, 0.0))
                     if lazy[i]:
                         dues[i] = now + (IDLE_S if nxt is None else max(nxt, 0.0))
-
 
     def _woke(self, end: float) -> None:
         """A wait that was to end at ``end`` (monotonic s) returned."""
