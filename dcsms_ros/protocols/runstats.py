@@ -119,7 +119,8 @@ class RunSummary:
         Real time: of ``late``, the deadlines that passed while the plant's loop, asleep until
         its next one, was not run (the OS or the hypervisor, or a thread of its process
         holding the GIL: :attr:`dcsms_ros.protocols.pacer.Pacer.woke_late`); the rest the
-        loop missed while it was running (its own work). In :meth:`to_dict` and the warning.
+        loop missed while it was running (its own work, and any pause of its thread or its
+        machine that fell within that work). In :meth:`to_dict` and the warning.
     """
 
     samples: int
