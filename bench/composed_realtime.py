@@ -101,9 +101,8 @@ def _why(r: dict[str, Any]) -> str:
             "rest of a period makes a sample late, and the late samples come as a few bursts "
             "per run (the runs above); an ideal thread of the same CPU lost what the next row "
             "shows in the minutes after each run (docs/performance.md, the machine's floor); "
-            f"{r['woke_late']} of the {r['late']} late samples passed while the driver was "
-            "not run after its wake-up time (a perf trace showed whole-machine pauses of ~3 ms: "
-            "docs/performance.md, who makes composed samples late)")
+            "the driver not run after its wake-up time (above) was, in a perf trace, the whole "
+            "machine paused for ~3 ms (docs/performance.md, who makes composed samples late)")
 
 
 def rows(secs: float, runs: list[dict[str, Any]], floors: list[dict[str, Any]],
