@@ -16,7 +16,11 @@ from geometry_msgs.msg import TwistStamped, WrenchStamped
 from sensor_msgs.msg import JointState
 
 from dcsms_ros.cdr import NS
-from dcsms_ros.ros.msgs import to_stamp
+
+
+def to_stamp(ns: int) -> Time:
+    """Integer nanoseconds -> builtin_interfaces/Time."""
+    return Time(sec=ns // NS, nanosec=ns % NS)
 
 
 def stamp_ns(stamp: Time) -> int:

@@ -15,7 +15,8 @@ Layouts
     :class:`Layout`, :func:`message_layout` (built, cached), :func:`read_layout` (from bytes).
 Per message
     :class:`StampedWriter`, :class:`JointStateWriter`, :func:`header_bytes`,
-    :func:`clock_bytes`, :func:`encode_string`; :func:`read_stamped`, :class:`JointStateReader`,
+    :func:`clock_bytes`, :func:`encode_string`, :func:`encode_diagnostics`;
+    :func:`read_stamped`, :class:`JointStateReader`,
     :func:`read_header`, :func:`read_frame`, :func:`read_stamp`, :func:`decode_string`.
 Batches
     :func:`encode_rows` (K messages -> (K, R) uint8), :func:`encode_stamped`,
@@ -42,10 +43,13 @@ from dcsms_ros.cdr.decode import (
     typestore,
 )
 from dcsms_ros.cdr.encode import (
+    DIAGNOSTIC_ARRAY,
+    DiagnosticStatus,
     JointStateWriter,
     StampedWriter,
     clock_bytes,
     encode_clock,
+    encode_diagnostics,
     encode_joint_state,
     encode_rows,
     encode_stamped,
@@ -69,12 +73,12 @@ from dcsms_ros.cdr.layout import (
 )
 
 __all__ = [
-    "BATCH_TYPES", "CLOCK", "HEADER", "JOINT_FIELDS", "JOINT_STATE", "NS", "STRING",
-    "SUPPORTED", "TWIST_STAMPED", "VECTOR_FIELD", "WRENCH_STAMPED", "Batch", "BatchReader",
-    "JointStateReader", "JointStateWriter", "Layout", "StampedWriter", "clock_bytes",
-    "decode_batch",
-    "decode_rows", "decode_string", "deserialize", "encode_clock", "encode_joint_state",
-    "encode_rows", "encode_stamped", "encode_string", "header_bytes", "message_layout",
-    "read_frame", "read_header", "read_layout", "read_stamp", "read_stamped",
-    "read_stamped_floats", "typestore",
+    "BATCH_TYPES", "CLOCK", "DIAGNOSTIC_ARRAY", "HEADER", "JOINT_FIELDS", "JOINT_STATE", "NS",
+    "STRING", "SUPPORTED", "TWIST_STAMPED", "VECTOR_FIELD", "WRENCH_STAMPED", "Batch",
+    "BatchReader", "DiagnosticStatus", "JointStateReader", "JointStateWriter", "Layout",
+    "StampedWriter", "clock_bytes", "decode_batch", "decode_rows", "decode_string",
+    "deserialize", "encode_clock", "encode_diagnostics", "encode_joint_state", "encode_rows",
+    "encode_stamped", "encode_string", "header_bytes", "message_layout", "read_frame",
+    "read_header", "read_layout", "read_stamp", "read_stamped", "read_stamped_floats",
+    "typestore",
 ]

@@ -23,10 +23,14 @@ from numpy.typing import ArrayLike, NDArray
 
 # layout.X, but the per-message paths' names as plain globals (no attribute lookup per call)
 from dcsms_ros.cdr import layout
+from dcsms_ros.cdr.decode import typestore
 from dcsms_ros.cdr.layout import NS, STAMP_AT, pack_stamp
 
 Array = NDArray[np.float64]
 
+
+#: diagnostic_msgs/DiagnosticArray (:func:`encode_diagnostics`)
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 
 # ---------------------------------------------------------------------------------------------
 # Per message
@@ -129,6 +133,28 @@ def clock_bytes(ns: int) -> bytes:
 def encode_string(text: str) -> bytes:
     """Serialise one std_msgs/String."""
     return layout.build_layout(layout.STRING, (text,)).buf
+
+
+#: One status of :func:`encode_diagnostics`: level (0 OK, 1 WARN, 2 ERROR, 3 STALE), name,
+#: message, hardware_id and the key/value pairs (each value written as ``str(value)``).
+DiagnosticStatus = tuple[int, str, str, str, Mapping[str, object]]
+
+
+def encode_diagnostics(stamp_ns: int, statuses: Sequence[DiagnosticStatus]) -> bytes:
+    """Serialise one diagnostic_msgs/DiagnosticArray stamped ``stamp_ns`` (int ns), in Python
+    (rosbags' serialiser): unlike rclpy's conversion of a message object, one C call that held
+    the GIL for ~185 us in the composed graph, it lets the process's real-time thread take the
+    GIL every switch interval (:mod:`dcsms_ros.ros.gilfree`)."""
+    ts = typestore()
+    t = ts.types
+    kv, status = t["diagnostic_msgs/msg/KeyValue"], t["diagnostic_msgs/msg/DiagnosticStatus"]
+    msg = t[DIAGNOSTIC_ARRAY](
+        header=t[layout.HEADER](stamp=t["builtin_interfaces/msg/Time"](
+            sec=stamp_ns // NS, nanosec=stamp_ns % NS), frame_id=""),
+        status=[status(level=level, name=name, message=message, hardware_id=hw,
+                       values=[kv(key=k, value=str(v)) for k, v in values.items()])
+                for level, name, message, hw, values in statuses])
+    return bytes(ts.serialize_cdr(msg, DIAGNOSTIC_ARRAY))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -238,5 +264,6 @@ def encode_clock(stamp_ns: NDArray[np.int64]) -> list[bytes]:
     return _split(encode_rows(layout.message_layout(layout.CLOCK), stamp_ns, {}))
 
 
-__all__ = ["JointStateWriter", "StampedWriter", "clock_bytes", "encode_clock", "encode_joint_state",
+__all__ = ["DIAGNOSTIC_ARRAY", "DiagnosticStatus", "JointStateWriter", "StampedWriter",
+           "clock_bytes", "encode_clock", "encode_diagnostics", "encode_joint_state",
            "encode_rows", "encode_stamped", "encode_string", "header_bytes"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
@@ -225,3 +226,29 @@ def test_the_floats_reader_and_writer_are_the_arrays_to_the_bit(dof: int, frame:
         assert ns == ns_a == 1_234_567_890_123
         assert type(got) is tuple and all(type(f) is float for f in got)
         assert np.array(got).tobytes() == want.tobytes()
+
+
+def _rclpy_diagnostics(ns, statuses):
+    arr = DiagnosticArray()
+    arr.header.stamp.sec, arr.header.stamp.nanosec = ns // 10**9, ns % 10**9
+    arr.status = [DiagnosticStatus(level=bytes([lv]), name=name, message=msg, hardware_id=hw,
+                                   values=[KeyValue(key=k, value=str(v)) for k, v in kv.items()])
+                  for lv, name, msg, hw, kv in statuses]
+    return arr
+
+
+@pytest.mark.parametrize("statuses", [
+    [],
+    [(0, "dcsms/plant_simulator", "", "dcsms", {})],
+    [(1, "a", "bc", "", {"k": 1}), (3, "dcsms/fb_stage1/x", "tripped: loud floor", "dcsms",
+                                    {"late": 12, "p99_s": 1.25e-4, "mode": "DFBC+FFC", "": ""})],
+    [(2, "n" * 7, "m" * 5, "h" * 3, {f"key_{j}": 1.2345 * j for j in range(15)})] * 3,
+])
+@pytest.mark.parametrize("ns", [0, 7_000_000_123])
+def test_diagnostics_read_back_by_rclpy_as_rclpy_builds_them(ns, statuses):
+    """A /diagnostics array serialised in Python is the message rclpy builds from the same
+    values, of the same size (strings of every length mod 4: the alignment)."""
+    mine = cdr.encode_diagnostics(ns, statuses)
+    theirs = _rclpy_diagnostics(ns, statuses)
+    assert deserialize_message(mine, DiagnosticArray) == theirs
+    assert len(mine) == len(serialize_message(theirs))
