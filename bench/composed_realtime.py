@@ -136,6 +136,7 @@ def rows(secs: float, runs: list[dict[str, Any]], floors: list[dict[str, Any]],
                 f"{statistics.median(x for x, _, _ in each):.5f}), within {LATE_MAX:g} in "
                 f"{met} of {len(runs)}; of the late, {r_all['woke_late']} passed while the "
                 f"driver, asleep until its next deadline, was not run after its wake-up time "
+                f"and nothing of its process ran "
                 f"(the rest, missed while it ran, with the stale forces: {own:.5f}); the floor "
                 f"after each run {per_floor}; the machine's steal time in each run {steal} %; "
                 f"{recorded}; --rt-priority 50" + (_why(r_all) if late > LATE_MAX else "")})

@@ -12,6 +12,9 @@ Markers (``pytest -m unit`` runs in seconds without DDS; ``make test`` runs ever
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -96,8 +99,9 @@ def ctx(domain: int) -> Iterator[Context]:
 @pytest.fixture
 def gil_holder() -> Iterator[Callable[[float], list[float]]]:
     """``hold(after_s)``: a thread that, ``after_s`` s from now, holds the GIL for 50-150 ms in
-    one C call (``sum`` over a range checks for no switch request); returns the list its
-    start and end (monotonic s) go into. Every holder is joined at the end of the test."""
+    one C call (``sum`` over a range checks for no switch request); returns the list that
+    gets its start and end (monotonic s) and the CPU time it used (s), all three once it
+    ended. Every holder is joined at the end of the test."""
     threads: list[threading.Thread] = []
 
     def hold(after_s: float) -> list[float]:
@@ -105,9 +109,9 @@ def gil_holder() -> Iterator[Callable[[float], list[float]]]:
 
         def run() -> None:
             time.sleep(after_s)
-            span.append(time.monotonic())
+            t0, c0 = time.monotonic(), time.thread_time()
             sum(range(15_000_000))
-            span.append(time.monotonic())
+            span.extend([t0, time.monotonic(), time.thread_time() - c0])
 
         threads.append(threading.Thread(target=run, name="gil-holder"))
         threads[-1].start()
@@ -116,6 +120,49 @@ def gil_holder() -> Iterator[Callable[[float], list[float]]]:
     yield hold
     for t in threads:
         t.join()
+
+
+#: The child of :func:`process_pause`: stops the process ``argv[1]`` after ``argv[2]`` s for
+#: ``argv[3]`` s, continues it whatever happens, prints the pause's start and end (monotonic s).
+_PAUSER = """
+import os, signal, sys, time
+pid, after, span = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
+print("ready", flush=True)
+time.sleep(after)
+t0 = time.monotonic()
+os.kill(pid, signal.SIGSTOP)
+try:
+    time.sleep(span)
+finally:
+    t1 = time.monotonic()
+    os.kill(pid, signal.SIGCONT)
+print(t0, t1)
+"""
+
+
+@pytest.fixture
+def process_pause() -> Iterator[Callable[[float, float], Callable[[], tuple[float, float]]]]:
+    """``pause(after_s, for_s)``: ``after_s`` s after it returns another process stops this
+    whole process (SIGSTOP) for ``for_s`` s, as a paused virtual machine would: no thread of
+    it runs. Returns ``span()``, which waits for the pause to end and gives its start and end
+    (monotonic s)."""
+    kids: list[subprocess.Popen[str]] = []
+
+    def pause(after_s: float, for_s: float) -> Callable[[], tuple[float, float]]:
+        kid = subprocess.Popen([sys.executable, "-c", _PAUSER, str(os.getpid()), str(after_s),
+                                str(for_s)], stdout=subprocess.PIPE, text=True)
+        kids.append(kid)
+        assert kid.stdout is not None and kid.stdout.readline() == "ready\n"
+
+        def span() -> tuple[float, float]:
+            t0, t1 = (float(x) for x in kid.communicate(timeout=10)[0].split())
+            return t0, t1
+
+        return span
+
+    yield pause
+    for kid in kids:
+        kid.wait(10)
 
 
 @pytest.fixture

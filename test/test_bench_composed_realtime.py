@@ -112,8 +112,9 @@ def test_rows_pool_the_runs_and_count_those_within_the_target() -> None:
     assert_allclose(late["value"], 42 / 8000 + 3 / 24000)
     assert "within 0.001 in 1 of 2" in late["note"] and "NOT met" in late["note"]
     assert "0.00050 / 0.01025" in late["note"]
-    # 30 of the 42 late passed while the driver was not run; the rest with the stale forces
-    assert "of the late, 30 passed" in late["note"]
+    # 30 of the 42 late passed while nothing of the process ran; the rest with the stale forces
+    assert ("of the late, 30 passed while the driver, asleep until its next deadline, was not "
+            "run after its wake-up time and nothing of its process ran") in late["note"]
     assert f"with the stale forces: {12 / 8000 + 3 / 24000:.5f}" in late["note"]
     lo, hi = (x / 8000 + 3 / 24000 for x in poisson_interval(42))
     assert f"interval of the pooled figure {lo:.5f}-{hi:.5f}" in late["note"]

@@ -311,7 +311,8 @@ class PlantIO:
         self._cpu[1] = time.process_time()
         pacer = self.node.pacer
         dropped = (f", {pacer.late} late, {pacer.overruns} dropped as overruns ("
-                   f"{pacer.woke_late} of them while the loop waited to run)"
+                   f"{pacer.woke_late} of them while the loop waited to run and nothing of "
+                   f"its process ran)"
                    if pacer.late or pacer.overruns else "")
         self.node.get_logger().info(
             f"finished {self.sim.k} samples ({self.sim.t:.3f} s simulated) in {wall:.2f} s "

@@ -8,12 +8,14 @@ run (docs/performance.md). A sample computed once the next one is due already
 after its deadline, and a keep-last-1 reader then answers only the newest of the burst. A plant
 that fell more than ``max_burst`` samples behind does not catch up in a burst: the backlog is
 dropped (counted as overruns) and the schedule moves on from now. Of those missed deadlines,
-the ones the loop's own late wake-up missed are counted apart (:attr:`Pacer.woke_late`): the
-loop slept to a deadline and got the CPU after it, so a loop with no work at all would have
-missed them too (on this package's virtual machine, mostly whole-machine pauses of ~3 ms;
-docs/performance.md, "Who makes composed samples late"). Inputs (force commands) are
-*held*: the newest value of each is used until it is older than ``timeout_s``, then it counts
-as zero (stale).
+the ones the loop's own late wake-up missed while nothing of its process ran are counted apart
+(:attr:`Pacer.woke_late`): the loop slept to a deadline and got the CPU after it, so a loop
+with no work at all would have missed them too (on this package's virtual machine, mostly
+whole-machine pauses of ~3 ms; docs/performance.md, "Who makes composed samples late"). A
+delay while another thread of the process ran, holding the GIL, is the process's own and is
+not counted there (the loop tells which, :func:`dcsms_ros.ros.lanewait.idle_late_s`).
+Inputs (force commands) are *held*: the newest value of each is used until it is older than
+``timeout_s``, then it counts as zero (stale).
 """
 
 from __future__ import annotations
@@ -40,7 +42,8 @@ class Pacer:
         #: samples computed in a catch-up burst, after the next sample was due
         self.late = 0
         #: of :attr:`late` and :attr:`overruns`, those that were not yet missed when the loop
-        #: asked to wake (:meth:`due`'s ``woke_late_s``)
+        #: asked to wake and passed while nothing of its process ran (:meth:`due`'s
+        #: ``woke_late_s``)
         self.woke_late = 0
 
     def start(self, now: float) -> None:
@@ -51,8 +54,9 @@ class Pacer:
     def due(self, now: float, k: int, woke_late_s: float = 0.0) -> int:
         """How many samples to compute at ``now`` (s) when ``k`` are done; the first call of a
         pacer not started makes sample ``k`` due at ``now``. ``woke_late_s`` (s): how long
-        after the time it asked to wake the loop got to run (0: it did not sleep, or woke in
-        time); the missed deadlines between those two times count in :attr:`woke_late`."""
+        after the time it asked to wake the loop got to run while nothing of its process ran
+        (0: it did not sleep, or woke in time); the missed deadlines in that time before now
+        count in :attr:`woke_late`."""
         if not self.started:
             self.start(now - k / self.rate)
         due = int((now - self.t0) * self.rate) + 1 - k

@@ -117,11 +117,12 @@ class RunSummary:
         in the late-sample warning from :data:`STEAL_NOTE` on.
     woke_late : int
         Real time: of ``late``, the deadlines that passed while the plant's loop, asleep until
-        its next one, was not run (the OS or the hypervisor, another real-time thread on its
-        core, or a thread of its process holding the GIL:
+        its next one, was not run and no thread of its process ran (the OS or the hypervisor,
+        or another real-time thread on its core:
         :attr:`dcsms_ros.protocols.pacer.Pacer.woke_late`); the rest the
         loop missed while it was running (its own work, and any pause of its thread or its
-        machine that fell within that work). In :meth:`to_dict` and the warning.
+        machine that fell within that work) or while another thread of its process held the
+        GIL. In :meth:`to_dict` and the warning.
     """
 
     samples: int
@@ -185,7 +186,8 @@ class RunSummary:
                            f"the loop that ran had more delay than the configured one")
                 if self.woke_late:
                     out[-1] += (f"; {self.woke_late} of the {self.late} passed while the "
-                                f"plant's loop waited to run after its wake-up time")
+                                f"plant's loop waited to run after its wake-up time and "
+                                f"nothing of its process ran")
                 if self.steal is not None and self.steal >= STEAL_NOTE:
                     out[-1] += (f" (its hypervisor took {100.0 * self.steal:.3g} % of the "
                                 f"machine's CPU meanwhile: steal time, a host busy with other "

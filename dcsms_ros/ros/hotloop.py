@@ -46,7 +46,7 @@ from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.localbus import LocalBus
 from dcsms_ros.ros.laneinput import PROBE_S
-from dcsms_ros.ros.lanewait import LanePath, LaneWait
+from dcsms_ros.ros.lanewait import LanePath, LaneWait, idle_late_s, process_cpu_ns
 from dcsms_ros.ros.placement import SHARED_CORE_GIL_SWITCH_S, ThreadPlacement
 
 #: Wake-up of the hot thread when nothing arrives (s): bounds the reaction to a stop request.
@@ -98,9 +98,10 @@ class HotLoop(ThreadPlacement):
     ticks; it waits on a wait set of all the subscriptions and a guard condition for at most
     the shortest time a tick asked for (on its wake-up pipe alone when it serves no DDS
     subscription: composed, with every topic in-process). Its priority and CPUs:
-    :class:`~.placement.ThreadPlacement`. After a wait it knows how late it got to run
-    (:attr:`woke_late_s`), which the plant's pacer uses to tell the samples its own late
-    wake-up made late from the others (:attr:`~dcsms_ros.protocols.pacer.Pacer.woke_late`).
+    :class:`~.placement.ThreadPlacement`. After a wait it knows how late it got to run while
+    nothing of its process ran (:attr:`woke_late_s`), which the plant's pacer uses to tell the
+    samples the machine made late from the graph's own
+    (:attr:`~dcsms_ros.protocols.pacer.Pacer.woke_late`).
     """
 
     def __init__(self, context: Context, name: str) -> None:
@@ -115,10 +116,11 @@ class HotLoop(ThreadPlacement):
         #: Called (on the loop's thread) once it failed: the host wakes its spin loop.
         self.on_error: Callable[[], object] | None = None
         self.wakeups = 0
-        #: How long after the time its last wait was to end the thread ran again (s; 0 when
-        #: it woke before that, or went on without waiting): the OS or the hypervisor did not
-        #: run it, another real-time thread had its core, or another thread of the process
-        #: held the GIL.
+        #: How long after the time its last wait was to end the thread ran again while no
+        #: thread of its process ran (s, :func:`.lanewait.idle_late_s`; 0 when it woke before
+        #: that, or went on without waiting): the OS or the hypervisor did not run it, or
+        #: another real-time thread had its core. A delay while another thread of the process
+        #: ran (holding the GIL) is left out: that is the graph's own.
         self.woke_late_s = 0.0
         self._subs: list[Subscription] = []
         self._serving: list[Served] = []
@@ -240,9 +242,9 @@ class HotLoop(ThreadPlacement):
                 if (bus is None or not bus.pending) and not handles:
                     # a wake() from now on is seen by the next wait, and what an earlier one
                     # announced is delivered by the pass below
-                    end = monotonic() + timeout
+                    end, cpu0 = monotonic() + timeout, process_cpu_ns()
                     waits.sleep(timeout)
-                    self._woke(end)
+                    self._woke(end, cpu0)
                     if self._stop:
                         break
                 elif lanes is not None and lanes.wait(timeout):
@@ -257,9 +259,9 @@ class HotLoop(ThreadPlacement):
                     for h in handles:
                         ws.add_subscription(h)
                     ws.add_guard_condition(guard)
-                    end = monotonic() + timeout
+                    end, cpu0 = monotonic() + timeout, process_cpu_ns()
                     ws.wait(max(int(timeout * 1e9), 0))
-                    self._woke(end)
+                    self._woke(end, cpu0)
                     if self._stop:
                         break
                     if subs and not ws.get_ready_entities("subscription") and \
@@ -293,10 +295,11 @@ class HotLoop(ThreadPlacement):
                     if lazy[i]:
                         dues[i] = now + (IDLE_S if nxt is None else max(nxt, 0.0))
 
-    def _woke(self, end: float) -> None:
-        """A wait that was to end at ``end`` (monotonic s) returned."""
+    def _woke(self, end: float, cpu0_ns: int) -> None:
+        """A wait that was to end at ``end`` (monotonic s), begun when the process had used
+        ``cpu0_ns`` of CPU, returned."""
         self.wakeups += 1
-        self.woke_late_s = max(time.monotonic() - end, 0.0)
+        self.woke_late_s = idle_late_s(end, cpu0_ns)
 
 
 class DrivenContext(Context):

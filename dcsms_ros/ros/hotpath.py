@@ -120,8 +120,9 @@ class HotPath(DetachedReaders):
 
     @property
     def woke_late_s(self) -> float:
-        """How late the loop serving this path ran after its last wait (s; 0 when it woke in
-        time, or the path is not served by a loop): :attr:`.hotloop.HotLoop.woke_late_s`."""
+        """How late the loop serving this path ran after its last wait while nothing of its
+        process ran (s; 0 when it woke in time, or the path is not served by a loop):
+        :attr:`.hotloop.HotLoop.woke_late_s`."""
         return self.loop.woke_late_s if self.loop is not None else 0.0
 
     @property

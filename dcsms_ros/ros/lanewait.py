@@ -21,6 +21,29 @@ from typing import Protocol
 
 from dcsms_ros.ros.laneinput import DDS, LANES, MIXED, STATE_S
 
+_PROCESS_CPU = time.CLOCK_PROCESS_CPUTIME_ID
+
+
+def process_cpu_ns() -> int:
+    """CPU time of the whole process, every thread (ns; ~0.7 us a call here)."""
+    return time.clock_gettime_ns(_PROCESS_CPU)
+
+
+def idle_late_s(end: float, cpu0_ns: int) -> float:
+    """How long after ``end`` (monotonic s), the time a wait was to end, the waiting thread
+    ran again, less the CPU time the process used since ``cpu0_ns`` (:func:`process_cpu_ns`
+    read before the wait): at least that long no thread of the process ran. The rest of the
+    delay another thread of the process may have caused: composed, the executor's thread
+    holding the GIL in a long C call, which the woken driver (same core) preempts but cannot
+    run Python before it returns. Measured in a composed run, the wake-ups ≥ 0.3 ms late split
+    cleanly: the process used about the whole delay (a GIL hold) or none of it (the machine
+    paused; docs/performance.md, "The executor's C calls")."""
+    late = time.monotonic() - end
+    if late <= 0.0:
+        return 0.0
+    return max(late - (process_cpu_ns() - cpu0_ns) * 1e-9, 0.0)
+
+
 #: Longest wait (s) on the lanes while a subscription also has a DDS writer without a lane
 #: (its DDS messages are taken after each wake-up; rare: another host's or a tool's writer of
 #: a topic the graph writes too).
@@ -55,7 +78,8 @@ class LaneWait:
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._fds = [self._wake_r, *(fd for p in self.paths for fd in p.lane_fds())]
         self._mode, self._mode_until = DDS, -1.0
-        #: how long after its timeout the last :meth:`wait` returned (s; 0: before it)
+        #: how long after its timeout the last :meth:`wait` returned with no thread of the
+        #: process running (s; 0: before it; :func:`idle_late_s`)
         self.woke_late_s = 0.0
 
     def __bool__(self) -> bool:
@@ -86,8 +110,9 @@ class LaneWait:
             return False
         if mode != LANES:
             timeout = min(timeout, DDS_POLL_S)
+        cpu0 = process_cpu_ns()
         ready, _, _ = select.select(self._fds, (), (), max(timeout, 0.0))
-        self.woke_late_s = max(time.monotonic() - now - max(timeout, 0.0), 0.0)
+        self.woke_late_s = idle_late_s(now + max(timeout, 0.0), cpu0)
         if self._wake_r in ready:
             with contextlib.suppress(OSError):
                 os.read(self._wake_r, 4096)

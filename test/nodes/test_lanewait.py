@@ -114,24 +114,46 @@ def test_a_lanes_wait_ends_at_a_message_a_wake_or_its_timeout_a_mixed_one_polls_
     w.wake()  # after close: nothing to write to, no error
 
 
-def test_a_wait_knows_how_long_after_its_timeout_it_got_to_run(lane, gil_holder):
+def test_a_wait_knows_how_long_after_its_timeout_nothing_of_its_process_ran(
+        lane, process_pause):
     """``woke_late_s``: 0 for a wait that a message or its timeout ended in time; for one
-    whose thread got the GIL only after another thread's long C call, the time from its
-    timeout to then."""
+    through whose timeout the whole process was stopped (a paused machine), the time from
+    its timeout to the pause's end."""
     path = _Path(lane)
     path.state = LANES
     w = LaneWait([path], serving=1)
     try:
         w.wake()
         assert w.wait(5.0) and w.woke_late_s == 0.0  # ended long before its timeout
-        span = gil_holder(0.005)
+        span = process_pause(0.005, 0.05)
         t0 = time.monotonic()
         assert w.wait(0.02)
         late = w.woke_late_s
-        while len(span) < 2:  # the holder's end comes after the wait got the GIL
+        p0, p1 = span()
+        assert p0 < t0 + 0.02 < p1 - 0.02  # stopped before the timeout, well past it
+        assert p1 - t0 - 0.02 - 0.005 < late <= time.monotonic() - t0 - 0.02
+    finally:
+        w.close()
+
+
+def test_a_wait_held_up_by_another_thread_of_its_process_is_not_late(lane, gil_holder):
+    """A thread that got the GIL only after another thread's long C call ran late, but
+    ``woke_late_s`` leaves out the CPU that thread used meanwhile (all of the delay, unless
+    other processes took the CPU from it)."""
+    path = _Path(lane)
+    path.state = LANES
+    w = LaneWait([path], serving=1)
+    try:
+        span = gil_holder(0.005)
+        t0 = time.monotonic()
+        assert w.wait(0.02)
+        back, late = time.monotonic(), w.woke_late_s
+        while len(span) < 3:  # filled once the hold ended
             time.sleep(0.001)
-        assert span[1] - t0 > 0.03  # it held the GIL well past the timeout
-        assert span[0] - t0 - 0.02 < late <= span[1] - t0 - 0.02
+        h0, _, cpu = span
+        assert cpu > 0.03 and back >= h0 + cpu - 0.001  # it did wait for the holder
+        # the holder's CPU is the process's: at most the rest of the delay is woke_late
+        assert late <= max(back - t0 - 0.02 - cpu, 0.0) + 0.003, (late, back - t0, cpu)
     finally:
         w.close()
 

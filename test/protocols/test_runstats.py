@@ -178,14 +178,16 @@ def test_a_late_warning_names_the_hypervisor_s_share_from_two_percent(
 @pytest.mark.parametrize("woke", [0, 1, 3900])
 def test_a_late_warning_says_how_many_passed_while_the_loop_was_not_run(woke: int) -> None:
     """The plant's ``woke_late_steps`` (of its late samples, those whose deadline passed
-    while its loop waited to run after its wake-up time) is in the JSON, and the late-sample
+    while its loop waited to run after its wake-up time and nothing of its process ran) is in
+    the JSON, and the late-sample
     warning names it when there are any."""
     plant = {"sample": "40000", "late_steps": "4394", "woke_late_steps": str(woke),
              "schedule": "realtime"}
     s = summarize(plant, None, [])
     w = s.warning()
     assert w is not None and s.to_dict()["woke_late"] == woke
-    assert (f"{woke} of the 4394 passed while the plant's loop waited" in w) == bool(woke)
+    assert (f"{woke} of the 4394 passed while the plant's loop waited to run after its "
+            f"wake-up time and nothing of its process ran" in w) == bool(woke)
     assert summarize({k: v for k, v in plant.items() if k != "woke_late_steps"}, None,
                      []).woke_late == 0  # a plant from before the count
 
