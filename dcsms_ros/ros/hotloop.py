@@ -79,6 +79,7 @@ class Served(LanePath, Protocol):
 
     node: Node
     lazy_tick: bool
+    timed_tick: bool
 
     @property
     def ticking(self) -> bool: ...
@@ -120,7 +121,8 @@ class HotLoop(ThreadPlacement):
         #: thread of its process ran (s, :func:`.lanewait.idle_late_s`; 0 when it woke before
         #: that, or went on without waiting): the OS or the hypervisor did not run it, or
         #: another real-time thread had its core. A delay while another thread of the process
-        #: ran (holding the GIL) is left out: that is the graph's own.
+        #: ran (holding the GIL) is left out: that is the graph's own. Measured only when a
+        #: path's tick is ``timed`` (:meth:`.hotpath.HotPath.set_tick`), else 0.
         self.woke_late_s = 0.0
         self._subs: list[Subscription] = []
         self._serving: list[Served] = []
@@ -151,7 +153,8 @@ class HotLoop(ThreadPlacement):
         # only these have anything to take: composed, most paths' topics are all in process,
         # and a pass over every path took each one's lock for nothing
         self._serving = [p for p, subs in resolved if subs]
-        self._lanes = LaneWait(self.paths, len(self._serving))
+        self._lanes = LaneWait(self.paths, len(self._serving),
+                               timed=any(p.timed_tick for p in self.paths))
         self._guard = GuardCondition(None, None, context=self.context)
         self.context.on_shutdown(self._on_shutdown)
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
@@ -230,6 +233,7 @@ class HotLoop(ThreadPlacement):
         waits = self._lanes  # made by start()
         assert waits is not None
         lanes = waits if waits else None  # the lanes, if any
+        timed = waits.timed
         with ExitStack() as stack:
             for s in subs:
                 stack.enter_context(s.handle)
@@ -242,7 +246,7 @@ class HotLoop(ThreadPlacement):
                 if (bus is None or not bus.pending) and not handles:
                     # a wake() from now on is seen by the next wait, and what an earlier one
                     # announced is delivered by the pass below
-                    end, cpu0 = monotonic() + timeout, process_cpu_ns()
+                    end, cpu0 = monotonic() + timeout, process_cpu_ns() if timed else -1
                     waits.sleep(timeout)
                     self._woke(end, cpu0)
                     if self._stop:
@@ -259,7 +263,7 @@ class HotLoop(ThreadPlacement):
                     for h in handles:
                         ws.add_subscription(h)
                     ws.add_guard_condition(guard)
-                    end, cpu0 = monotonic() + timeout, process_cpu_ns()
+                    end, cpu0 = monotonic() + timeout, process_cpu_ns() if timed else -1
                     ws.wait(max(int(timeout * 1e9), 0))
                     self._woke(end, cpu0)
                     if self._stop:
@@ -297,9 +301,10 @@ class HotLoop(ThreadPlacement):
 
     def _woke(self, end: float, cpu0_ns: int) -> None:
         """A wait that was to end at ``end`` (monotonic s), begun when the process had used
-        ``cpu0_ns`` of CPU, returned."""
+        ``cpu0_ns`` of CPU (-1: the loop does not time its waits), returned."""
         self.wakeups += 1
-        self.woke_late_s = idle_late_s(end, cpu0_ns)
+        if cpu0_ns >= 0:
+            self.woke_late_s = idle_late_s(end, cpu0_ns)
 
 
 class DrivenContext(Context):

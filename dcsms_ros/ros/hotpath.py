@@ -88,6 +88,8 @@ class HotPath(DetachedReaders):
         self._tick: Callable[[], float | None] | None = None
         #: the tick's deadline only moves later (:meth:`set_tick`)
         self.lazy_tick = False
+        #: the tick reads :attr:`woke_late_s` (:meth:`set_tick`)
+        self.timed_tick = False
         self.loop: HotLoop | None = None
         self._own = False
         self.messages = 0
@@ -121,8 +123,8 @@ class HotPath(DetachedReaders):
     @property
     def woke_late_s(self) -> float:
         """How late the loop serving this path ran after its last wait while nothing of its
-        process ran (s; 0 when it woke in time, or the path is not served by a loop):
-        :attr:`.hotloop.HotLoop.woke_late_s`."""
+        process ran (s; 0 when it woke in time, when no path of the loop has a ``timed``
+        tick, or the path is not served by a loop): :attr:`.hotloop.HotLoop.woke_late_s`."""
         return self.loop.woke_late_s if self.loop is not None else 0.0
 
     @property
@@ -261,7 +263,8 @@ class HotPath(DetachedReaders):
         """True if :meth:`set_tick` gave the path a tick."""
         return self._tick is not None
 
-    def set_tick(self, tick: Callable[[], float | None], lazy: bool = False) -> None:
+    def set_tick(self, tick: Callable[[], float | None], lazy: bool = False,
+                 timed: bool = False) -> None:
         """Call ``tick()`` (under the lock) after every wake-up; it returns the longest wait
         (s) until it must run again, or None for :data:`IDLE_S`. Only with the path on, and
         before it starts.
@@ -270,9 +273,14 @@ class HotPath(DetachedReaders):
         thread only moves it later, or calls :meth:`wake`), so the loop calls it only once
         the wait it returned has passed, or after a :meth:`wake`: a controller's watchdog,
         which each input moves later. Asked at every wake-up it was the lock and three calls
-        a sample (docs/performance.md, "Fewer calls a sample")."""
+        a sample (docs/performance.md, "Fewer calls a sample").
+
+        ``timed``: the tick reads :attr:`woke_late_s` (the plant's pacer), so the loop reads
+        the process's CPU time around each wait, ~1-2 us a wake-up that a controller's
+        40 us budget need not pay (a loop without a timed path reports 0)."""
         self._tick = tick
         self.lazy_tick = lazy
+        self.timed_tick = timed
 
     def start(self) -> None:
         """Serve the subscriptions: by this process's driver loop if the node's context is

@@ -68,9 +68,13 @@ class LaneWait:
     serving : int
         How many of the loop's paths have subscriptions to serve: if a path without lanes
         has some, the loop must wait on DDS.
+    timed : bool
+        Measure :attr:`woke_late_s` (two reads of the process's CPU time a wait); else it
+        stays 0.
     """
 
-    def __init__(self, paths: Sequence[LanePath], serving: int) -> None:
+    def __init__(self, paths: Sequence[LanePath], serving: int, timed: bool = False) -> None:
+        self.timed = timed
         self.paths = [p for p in paths if p.lane_fds()]
         self._all_served = len(self.paths) >= serving
         # the wake-up pipe, also for a loop without lanes that has no DDS reader to wait on
@@ -79,7 +83,7 @@ class LaneWait:
         self._fds = [self._wake_r, *(fd for p in self.paths for fd in p.lane_fds())]
         self._mode, self._mode_until = DDS, -1.0
         #: how long after its timeout the last :meth:`wait` returned with no thread of the
-        #: process running (s; 0: before it; :func:`idle_late_s`)
+        #: process running (s; 0: before it, or not ``timed``; :func:`idle_late_s`)
         self.woke_late_s = 0.0
 
     def __bool__(self) -> bool:
@@ -110,9 +114,12 @@ class LaneWait:
             return False
         if mode != LANES:
             timeout = min(timeout, DDS_POLL_S)
-        cpu0 = process_cpu_ns()
-        ready, _, _ = select.select(self._fds, (), (), max(timeout, 0.0))
-        self.woke_late_s = idle_late_s(now + max(timeout, 0.0), cpu0)
+        if self.timed:
+            cpu0 = process_cpu_ns()
+            ready, _, _ = select.select(self._fds, (), (), max(timeout, 0.0))
+            self.woke_late_s = idle_late_s(now + max(timeout, 0.0), cpu0)
+        else:
+            ready, _, _ = select.select(self._fds, (), (), max(timeout, 0.0))
         if self._wake_r in ready:
             with contextlib.suppress(OSError):
                 os.read(self._wake_r, 4096)

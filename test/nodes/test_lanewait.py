@@ -121,7 +121,7 @@ def test_a_wait_knows_how_long_after_its_timeout_nothing_of_its_process_ran(
     its timeout to the pause's end."""
     path = _Path(lane)
     path.state = LANES
-    w = LaneWait([path], serving=1)
+    w = LaneWait([path], serving=1, timed=True)
     try:
         w.wake()
         assert w.wait(5.0) and w.woke_late_s == 0.0  # ended long before its timeout
@@ -142,7 +142,7 @@ def test_a_wait_held_up_by_another_thread_of_its_process_is_not_late(lane, gil_h
     other processes took the CPU from it)."""
     path = _Path(lane)
     path.state = LANES
-    w = LaneWait([path], serving=1)
+    w = LaneWait([path], serving=1, timed=True)
     try:
         span = gil_holder(0.005)
         t0 = time.monotonic()

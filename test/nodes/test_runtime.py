@@ -41,9 +41,10 @@ def test_a_hot_loop_shortens_the_gil_switch_interval(ctx) -> None:
         node.destroy_node()
 
 
-def _ticks_of_a_2ms_loop(ctx, during: Callable[[], None]) -> list[tuple[float, float]]:
-    """(monotonic s, ``woke_late_s``) at every tick of a hot loop whose tick asks for 2 ms
-    sleeps, 0.2 s before and after ``during()``."""
+def _ticks_of_a_2ms_loop(ctx, during: Callable[[], None],
+                         timed: bool = True) -> list[tuple[float, float]]:
+    """(monotonic s, ``woke_late_s``) at every tick of a hot loop whose (``timed``) tick asks
+    for 2 ms sleeps, 0.2 s before and after ``during()``."""
     node = Node("woke_late_probe", context=ctx)
     hot = HotPath(node, threading.Lock())
     seen: list[tuple[float, float]] = []
@@ -52,7 +53,7 @@ def _ticks_of_a_2ms_loop(ctx, during: Callable[[], None]) -> list[tuple[float, f
         seen.append((time.monotonic(), hot.woke_late_s))
         return 0.002
 
-    hot.set_tick(tick)
+    hot.set_tick(tick, timed=timed)
     try:
         hot.start()
         time.sleep(0.2)
@@ -76,6 +77,16 @@ def test_a_hot_loop_knows_how_long_nothing_of_its_process_ran_after_a_wait(
     # the sleep in progress at the pause ended within 2 ms after its start
     t, late = next((t, w) for t, w in seen if t >= t0)
     assert t1 - t0 - 0.005 < late <= t - t0, (late, (t0, t1), t)
+
+
+def test_a_loop_without_a_timed_tick_does_not_measure(ctx, process_pause) -> None:
+    """Only a loop with a ``timed`` tick (the plant's) pays for the CPU-time reads: another
+    reports 0 even after the whole process stopped through its sleep's end."""
+    spans: list[Callable[[], tuple[float, float]]] = []
+    seen = _ticks_of_a_2ms_loop(ctx, lambda: spans.append(process_pause(0.0, 0.05)),
+                                timed=False)
+    t0, _ = spans[0]()
+    assert any(t >= t0 for t, _ in seen) and all(w == 0.0 for _, w in seen)
 
 
 def test_a_delay_another_thread_of_the_process_made_is_not_woke_late(ctx, gil_holder) -> None:
