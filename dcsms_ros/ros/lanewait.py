@@ -114,12 +114,10 @@ class LaneWait:
             return False
         if mode != LANES:
             timeout = min(timeout, DDS_POLL_S)
-        if self.timed:
-            cpu0 = process_cpu_ns()
-            ready, _, _ = select.select(self._fds, (), (), max(timeout, 0.0))
+        cpu0 = process_cpu_ns() if self.timed else -1
+        ready, _, _ = select.select(self._fds, (), (), max(timeout, 0.0))
+        if cpu0 >= 0:
             self.woke_late_s = idle_late_s(now + max(timeout, 0.0), cpu0)
-        else:
-            ready, _, _ = select.select(self._fds, (), (), max(timeout, 0.0))
         if self._wake_r in ready:
             with contextlib.suppress(OSError):
                 os.read(self._wake_r, 4096)
