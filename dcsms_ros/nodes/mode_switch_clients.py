@@ -16,6 +16,7 @@ from rclpy.task import Future
 from std_srvs.srv import SetBool
 
 from dcsms_ros.core import topics
+from dcsms_ros.ros import gilfree
 from dcsms_ros.ros.services import call_together
 
 
@@ -68,7 +69,8 @@ class ControllerClients:
     def reconcile(self, want: Callable[[str], bool]) -> None:
         """Tell a controller whose service (re)appeared the state ``want(c)``."""
         for c, client in self.clients.items():
-            ready = client.service_is_ready()
+            # without the GIL: composed, rclpy's call made the driver wake up to 0.39 ms late
+            ready = gilfree.service_is_ready(self.node, client)
             if ready and not self.ready[c]:
                 self.tell(c, want(c), "joined")
             elif not ready and self.ready[c]:

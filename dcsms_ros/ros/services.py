@@ -20,6 +20,7 @@ from rclpy.client import Client
 from rclpy.node import Node
 from rclpy.task import Future
 
+from dcsms_ros.ros import gilfree
 from dcsms_ros.ros.clock import steady_timer
 
 #: Seconds between looks for a service that is not there yet.
@@ -85,7 +86,7 @@ async def call_together(node: Node, clients: Mapping[str, Client], requests: Map
     pending = list(requests)
     # every ready service gets its request at once; the others are waited for in turn
     while pending:
-        for k in [k for k in pending if clients[k].service_is_ready()]:
+        for k in [k for k in pending if gilfree.service_is_ready(node, clients[k])]:
             futures[k] = clients[k].call_async(requests[k])
             pending.remove(k)
         if not pending:

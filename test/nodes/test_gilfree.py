@@ -10,9 +10,11 @@ from typing import Any
 
 import pytest
 from rclpy.context import Context
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import String
+from std_srvs.srv import SetBool
 
 from dcsms_ros import cdr
 from dcsms_ros.ros import gilfree
@@ -119,3 +121,33 @@ def test_the_long_calls_let_another_python_thread_run(ctx: Context, node: Node) 
     assert _stamps_inside(lambda: pub.publish(data), 50) == 0
     assert _stamps_inside(lambda: gilfree.topic_names_and_types(node), 50) >= 3
     assert _stamps_inside(lambda: gilfree.publish_bytes(pub, data), 50) >= 3
+
+
+def test_service_readiness_agrees_with_rclpy(ctx: Context, node: Node) -> None:
+    """mode_switch's check of the controllers' enable services: not there, there, gone."""
+    client = node.create_client(SetBool, "gilfree_enable")
+    assert gilfree.service_is_ready(node, client) is client.service_is_ready() is False
+    other = Node("gilfree_server", context=ctx)
+    srv = other.create_service(SetBool, "gilfree_enable", lambda q, r: r)
+    _wait_for(client.service_is_ready, 5.0)
+    assert gilfree.service_is_ready(node, client) is True
+    other.destroy_service(srv)
+    _wait_for(lambda: not client.service_is_ready(), 5.0)
+    assert gilfree.service_is_ready(node, client) is False
+    other.destroy_node()
+
+
+def test_a_destroyed_client_is_refused_as_rclpy_refuses_it(node: Node) -> None:
+    client = node.create_client(SetBool, "gilfree_gone")
+    node.destroy_client(client)
+    with pytest.raises(InvalidHandle):
+        client.service_is_ready()
+    with pytest.raises(InvalidHandle):
+        gilfree.service_is_ready(node, client)
+
+
+def _wait_for(done: Callable[[], bool], timeout_s: float) -> None:
+    end = time.monotonic() + timeout_s
+    while not done():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.02)
