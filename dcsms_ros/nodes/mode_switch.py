@@ -48,7 +48,6 @@ from dcsms_ros.nodes.mode_switch_checkpoints import CheckpointAnswers
 from dcsms_ros.nodes.mode_switch_clients import ControllerClients
 from dcsms_ros.nodes.mode_switch_supervisor import TableWatch
 from dcsms_ros.ros import qos
-from dcsms_ros.ros.callbackgroups import UnlockedGroup
 from dcsms_ros.ros.graphnode import GraphNode
 from dcsms_ros.ros.hosted import Hosted
 from dcsms_ros.ros.hotpath import HotPath
@@ -137,9 +136,6 @@ class ModeSwitchNode(GraphNode, Hosted):
             if self.trip_enabled and self.lockstep else None)
         if self.trip_enabled and self.checks is None:
             self.housekeeping(0.05, self._judge_timer, MutuallyExclusiveCallbackGroup())
-        # the graph queries outside the node's lock (the hot loop takes it every sample), the
-        # decision under it, in the same turn of the housekeeping timer
-        self.housekeeping(0.5, self.ctl.probe, UnlockedGroup())
         self.housekeeping(0.5, self._reconcile, services)
         self.housekeeping(1.0, self._report)
         self._publish_mode()

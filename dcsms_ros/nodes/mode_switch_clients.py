@@ -29,8 +29,6 @@ class ControllerClients:
         self.clients = {c: node.create_client(SetBool, names.enable(c), callback_group=group)
                         for c in controllers}
         self.ready = dict.fromkeys(controllers, False)
-        #: Which services had a server at the last :meth:`probe` (None: not probed yet).
-        self.seen: dict[str, bool] | None = None
         # a controller killed and restarted keeps its enable service "ready" (DDS liveliness
         # lease): its new boot id is what tells us it came back
         self.boots: dict[str, int] = {}
@@ -68,20 +66,11 @@ class ControllerClients:
         fut.add_done_callback(lambda f: self.node.get_logger().info(
             f"{c} {why}: {f.result().message if f.result() else 'no reply'}"))
 
-    def probe(self) -> None:
-        """Ask the graph which enable services have a server (:attr:`seen`). It touches no
-        state of the node, so it runs outside the node's lock, and the queries release the
-        GIL: composed, rclpy's held it while the driver waited, up to 0.39 ms late."""
-        self.seen = {c: gilfree.service_is_ready(self.node, client)
-                     for c, client in self.clients.items()}
-
     def reconcile(self, want: Callable[[str], bool]) -> None:
-        """Tell a controller whose service (re)appeared at the last :meth:`probe` the state
-        ``want(c)``."""
-        seen = self.seen
-        if seen is None:
-            return
-        for c, ready in seen.items():
+        """Tell a controller whose service (re)appeared the state ``want(c)``."""
+        for c, client in self.clients.items():
+            # without the GIL: composed, rclpy's call made the driver wake up to 0.39 ms late
+            ready = gilfree.service_is_ready(self.node, client)
             if ready and not self.ready[c]:
                 self.tell(c, want(c), "joined")
             elif not ready and self.ready[c]:
