@@ -10,7 +10,7 @@ the call returns: 102 of its wake-ups in one 20 s run ended 0.3-0.9 ms late that
 executor's thread was running (docs/performance.md, "The executor's C calls"). Later, in 2
 runs, 5 wake-ups 0.30-0.39 ms late found the executor's thread just back from rclpy's
 ``service_is_ready`` (mode_switch's check of the controllers' enable services, 6 a second),
-none in 11 runs with it here. Through
+none in 9 runs with it here. Through
 :mod:`ctypes` the same rcl functions run without the GIL, so the driver runs Python as soon
 as it is woken. The caller serialises a message in Python (which yields the GIL every switch
 interval) and publishes the bytes.
