@@ -69,6 +69,7 @@ def pooled(runs: list[dict[str, Any]]) -> tuple[dict[str, Any], dict[str, float]
          "overruns": sum(r["overruns"] for r in runs), "late": sum(r["late"] for r in runs),
          "stale": sum(r["stale"] for r in runs), "controllers": runs[0]["controllers"],
          "woke_late": sum(r.get("woke_late", 0) for r in runs),
+         "paused": sum(r.get("paused", 0) for r in runs),
          "published": None, "recorded": None}
     return r, s
 
@@ -116,7 +117,8 @@ def rows(secs: float, runs: list[dict[str, Any]], floors: list[dict[str, Any]],
     forces = sum(f for _, _, f in each)
     late = r_all["late"] / deadlines + r_all["stale"] / forces
     met = sum(x <= LATE_MAX for x, _, _ in each)
-    own = (r_all["late"] - r_all["woke_late"]) / deadlines + r_all["stale"] / forces
+    machine = r_all["woke_late"] + r_all["paused"]
+    own = (r_all["late"] - machine) / deadlines + r_all["stale"] / forces
     lo, hi = (b + r_all["stale"] / forces for b in count_interval(r_all["late"], deadlines))
     per_run = " / ".join(f"{x:.5f}" for x, _, _ in each)
     per_floor = " / ".join(f"{f['late_ratio']:.5f}" for f in floors)
@@ -136,8 +138,9 @@ def rows(secs: float, runs: list[dict[str, Any]], floors: list[dict[str, Any]],
                 f"{statistics.median(x for x, _, _ in each):.5f}), within {LATE_MAX:g} in "
                 f"{met} of {len(runs)}; of the late, {r_all['woke_late']} passed while the "
                 f"driver, asleep until its next deadline, was not run after its wake-up time "
-                f"and nothing of its process ran "
-                f"(the rest, missed while it ran, with the stale forces: {own:.5f}); the floor "
+                f"and nothing of its process ran, and {r_all['paused']} more were pushed back "
+                f"by such a pause while it worked (the rest, the graph's own at most, with the "
+                f"stale forces: {own:.5f}); the floor "
                 f"after each run {per_floor}; the machine's steal time in each run {steal} %; "
                 f"{recorded}; --rt-priority 50" + (_why(r_all) if late > LATE_MAX else "")})
     wake = "/".join(f"{q:.0f}" for q in floors[-1]["wake_us"])

@@ -65,8 +65,8 @@ if _OUT:
         import rclpy.executors as ex
         due0 = pacer.Pacer.due
 
-        def due(self, now, k, woke_late_s=0.0):
-            n = due0(self, now, k, woke_late_s)
+        def due(self, now, k, woke_late_s=0.0, paused_s=0.0):
+            n = due0(self, now, k, woke_late_s, paused_s)
             if n >= 1:
                 _LOG["due"].append((now, self.t0 + k / self.rate, n, 1.0 / self.rate))
             return n

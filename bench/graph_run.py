@@ -189,6 +189,7 @@ def run_graph(schedule: str, seconds: float, domain: int, tmp: Path, hot: bool =
            "overruns": int(z["overruns"]), "recorded": None,
            "late": int(z["overruns"]) + int(z["late_steps"] if "late_steps" in z.files else 0),
            "woke_late": int(z["woke_late_steps"]) if "woke_late_steps" in z.files else 0,
+           "paused": int(z["paused_steps"]) if "paused_steps" in z.files else 0,
            "stale": int(z["stale_samples"]) if "stale_samples" in z.files else 0,
            "controllers": len([k for k in z.files if k.startswith("lat_ns_")]),
            "steal": steal_fraction(host0, host1)}

@@ -121,9 +121,9 @@ def per_process_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row
     if ended:
         sums = [runs[i]["summary"] for i in ended]
         lates = [late_per_sample(s) for s in sums]
-        each = ", ".join(f"late {s['late']} (of them {s.get('woke_late', 0)} while nothing of "
-                         f"the plant's process ran) stale {s['stale']} ({v:.4f}), forces "
-                         f"applied a sample late {_delayed(s)}"
+        each = ", ".join(f"late {s['late']} (of them {s.get('woke_late', 0)} + "
+                         f"{s.get('paused', 0)} while nothing of the plant's process ran) stale "
+                         f"{s['stale']} ({v:.4f}), forces applied a sample late {_delayed(s)}"
                          for s, v in zip(sums, lates, strict=True))
         busy = percents([runs[i]["busy"] for i in ended], digits=0)
         steal = percents([s.get("steal") for s in sums])
@@ -144,11 +144,12 @@ def per_process_rows(smoke: bool, tmp: Path, base: int, rt_s: float) -> list[Row
 def _late_why(summary: dict[str, Any], late: float, floor: float) -> str:
     """Why the worst run (``summary``, its late + stale ``late``) misses the target, from its
     own figures and the machine's ``floor`` measured right after it."""
-    woke = summary.get("woke_late", 0)
-    own = late - woke / max(summary["samples"] + summary["overruns"], 1)
+    woke, paused = summary.get("woke_late", 0), summary.get("paused", 0)
+    own = late - (woke + paused) / max(summary["samples"] + summary["overruns"], 1)
     why = (f"; NOT met: in the worst run {woke} of its {summary['late']} late samples passed "
            f"while the plant's loop, asleep until its next deadline, was not run after its "
-           f"wake-up time and nothing of its process ran (the machine); the rest, with the "
+           f"wake-up time and nothing of its process ran, and {paused} more were pushed back "
+           f"by such a pause while it worked (the machine); the rest, with the "
            f"stale forces, {own:.4f}, an upper bound of the graph's own share (a pause of "
            f"another node's process is in it); the ideal thread after it lost {floor:.4f}")
     if own > LATE_MAX:

@@ -96,6 +96,7 @@ def test_rows_pool_the_runs_and_count_those_within_the_target() -> None:
     secs = 2.0
     runs = [_run(1, 4000, late=2, stale=0), _run(2, 4000, late=40, stale=3)]
     runs[1]["woke_late"] = 30
+    runs[0]["paused"], runs[1]["paused"] = 1, 4
     floors = [{"late": 1, "samples": 4000, "late_ratio": 2.5e-4, "work_us": 230.0,
                "wake_us": [40.0, 60.0, 150.0]},
               {"late": 9, "samples": 4000, "late_ratio": 2.25e-3, "work_us": 240.0,
@@ -112,10 +113,12 @@ def test_rows_pool_the_runs_and_count_those_within_the_target() -> None:
     assert_allclose(late["value"], 42 / 8000 + 3 / 24000)
     assert "within 0.001 in 1 of 2" in late["note"] and "NOT met" in late["note"]
     assert "0.00050 / 0.01025" in late["note"]
-    # 30 of the 42 late passed while nothing of the process ran; the rest with the stale forces
+    # 30 of the 42 late passed while nothing of the process ran after a wake-up, 5 were
+    # pushed back by a pause while the driver worked; the rest with the stale forces
     assert ("of the late, 30 passed while the driver, asleep until its next deadline, was not "
-            "run after its wake-up time and nothing of its process ran") in late["note"]
-    assert f"with the stale forces: {12 / 8000 + 3 / 24000:.5f}" in late["note"]
+            "run after its wake-up time and nothing of its process ran, and 5 more were pushed "
+            "back by such a pause while it worked") in late["note"]
+    assert f"with the stale forces: {7 / 8000 + 3 / 24000:.5f}" in late["note"]
     lo, hi = (x / 8000 + 3 / 24000 for x in poisson_interval(42))
     assert f"interval of the pooled figure {lo:.5f}-{hi:.5f}" in late["note"]
     assert_allclose(floor["value"], 10 / 8000)

@@ -121,7 +121,7 @@ class PlantSimulatorNode(GraphNode, Hosted):
         # pumps and watches the barrier's deadlines (lockstep), unless the hot path is off
         tick = 1.0 / self.rate if not self.lockstep and not self.hot.on else 0.005
         self._tick_timer = steady_timer(self, tick, self._tick)
-        self.hot.set_tick(self._hot_tick, timed=True)  # the pacer reads woke_late_s
+        self.hot.set_tick(self._hot_tick, timed=True)  # the pacer reads the pauses
         self.housekeeping(opts.status_period_s, self.io.report)
         self.get_logger().info(
             f"{self.schedule} at {self.rate:g} Hz, {cfg.plant.num_stages} stages "
@@ -178,7 +178,10 @@ class PlantSimulatorNode(GraphNode, Hosted):
             return self._lockstep(time.monotonic())
         for drain, on_force in self._force_subs:
             drain(on_force)
-        self._realtime(time.monotonic(), self.hot.woke_late_s)
+        now = time.monotonic()
+        # the pauses are read once a sample (a read of the CPU clock), not at every wake-up
+        paused = self.hot.take_paused_s() if self.pacer.wait_s(now, self.sim.k) <= 0.0 else 0.0
+        self._realtime(now, self.hot.woke_late_s, paused)
         return self.pacer.wait_s(time.monotonic(), self.sim.k)
 
     def _lockstep(self, now: float) -> float | None:
@@ -267,8 +270,8 @@ class PlantSimulatorNode(GraphNode, Hosted):
             self._complete()
             self._pump()
 
-    def _realtime(self, now: float, woke_late_s: float = 0.0) -> None:
-        for _ in range(self.pacer.due(now, self.sim.k, woke_late_s)):
+    def _realtime(self, now: float, woke_late_s: float = 0.0, paused_s: float = 0.0) -> None:
+        for _ in range(self.pacer.due(now, self.sim.k, woke_late_s, paused_s)):
             k = self.sim.k
             self.io.publish_sample(k)
             # forces are aged at sample k's publication, on the clock of the times they count

@@ -312,7 +312,8 @@ class PlantIO:
         pacer = self.node.pacer
         dropped = (f", {pacer.late} late, {pacer.overruns} dropped as overruns ("
                    f"{pacer.woke_late} of them while the loop waited to run and nothing of "
-                   f"its process ran)"
+                   f"its process ran, {pacer.paused} pushed back by such a pause while it "
+                   f"worked)"
                    if pacer.late or pacer.overruns else "")
         self.node.get_logger().info(
             f"finished {self.sim.k} samples ({self.sim.t:.3f} s simulated) in {wall:.2f} s "
@@ -345,7 +346,7 @@ class PlantIO:
                   "latency_p50_ms": f"{self.latency_hist.quantile(0.5) * 1e3:.4f}",
                   "latency_p99_ms": f"{self.latency_hist.quantile(0.99) * 1e3:.4f}",
                   "overruns": nd.pacer.overruns, "late_steps": nd.pacer.late,
-                  "woke_late_steps": nd.pacer.woke_late,
+                  "woke_late_steps": nd.pacer.woke_late, "paused_steps": nd.pacer.paused,
                   "nonfinite_inputs": self.sim.nonfinite_inputs,
                   "rejected_inputs": nd.force_guard.rejected,
                   "saturations": self.sim.saturations, "finished": nd.finished,
@@ -367,6 +368,7 @@ class PlantIO:
                 "cpu_s": np.asarray(self._cpu), "rate_hz": self.sim.cfg.plant.rate_hz,
                 "overruns": self.node.pacer.overruns, "late_steps": self.node.pacer.late,
                 "woke_late_steps": self.node.pacer.woke_late,
+                "paused_steps": self.node.pacer.paused,
                 "stale_samples": sum(self.node.held.stale_samples.values())}
             arrays.update({f"lat_ns_{c}": np.asarray(v, dtype=np.int64)
                            for c, v in self._lat.items()})

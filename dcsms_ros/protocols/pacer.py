@@ -11,9 +11,10 @@ dropped (counted as overruns) and the schedule moves on from now. Of those misse
 the ones the loop's own late wake-up missed while nothing of its process ran are counted apart
 (:attr:`Pacer.woke_late`): the loop slept to a deadline and got the CPU after it, so a loop
 with no work at all would have missed them too (on this package's virtual machine, mostly
-whole-machine pauses of ~3 ms; docs/performance.md, "Who makes composed samples late"). A
-delay while another thread of the process ran, holding the GIL, is the process's own and is
-not counted there (the loop tells which, :func:`dcsms_ros.ros.lanewait.idle_late_s`).
+whole-machine pauses of ~3 ms; docs/performance.md, "Who makes composed samples late"); those
+that a pause while the loop worked pushed back are counted apart too (:attr:`Pacer.paused`).
+A delay while another thread of the process ran, holding the GIL, is the process's own and is
+not counted in either (the loop tells which, :class:`dcsms_ros.ros.lanewait.PauseMeter`).
 Inputs (force commands) are *held*: the newest value of each is used until it is older than
 ``timeout_s``, then it counts as zero (stale).
 """
@@ -45,24 +46,33 @@ class Pacer:
         #: asked to wake and passed while nothing of its process ran (:meth:`due`'s
         #: ``woke_late_s``)
         self.woke_late = 0
+        #: of :attr:`late` and :attr:`overruns`, those that the loop would have met but for
+        #: the time it worked while nothing of its process ran (:meth:`due`'s ``paused_s``)
+        self.paused = 0
 
     def start(self, now: float) -> None:
         """Sample 0 is due at ``now`` (s)."""
         self.t0 = now
         self.started = True
 
-    def due(self, now: float, k: int, woke_late_s: float = 0.0) -> int:
+    def due(self, now: float, k: int, woke_late_s: float = 0.0, paused_s: float = 0.0) -> int:
         """How many samples to compute at ``now`` (s) when ``k`` are done; the first call of a
         pacer not started makes sample ``k`` due at ``now``. ``woke_late_s`` (s): how long
         after the time it asked to wake the loop got to run while nothing of its process ran
         (0: it did not sleep, or woke in time); the missed deadlines in that time before now
-        count in :attr:`woke_late`."""
+        count in :attr:`woke_late`. ``paused_s`` (s): how long, since the last samples it
+        computed, the loop worked while nothing of its process ran; the missed deadlines in
+        that time before the late wake-up count in :attr:`paused` (a pause pushes back
+        everything after it, so without it the loop would have been that much earlier)."""
         if not self.started:
             self.start(now - k / self.rate)
         due = int((now - self.t0) * self.rate) + 1 - k
-        if due > 1 and woke_late_s > 0.0:
-            asked = int((now - woke_late_s - self.t0) * self.rate) + 1 - k
-            self.woke_late += due - max(asked, 1)
+        if due > 1 and (woke_late_s > 0.0 or paused_s > 0.0):
+            asked = max(int((now - woke_late_s - self.t0) * self.rate) + 1 - k, 1)
+            self.woke_late += due - asked
+            if asked > 1:
+                unpaused = int((now - woke_late_s - paused_s - self.t0) * self.rate) + 1 - k
+                self.paused += asked - max(unpaused, 1)
         if due > self.max_burst:
             # too far behind to catch up without a burst: drop the backlog, count it
             self.overruns += due - 1

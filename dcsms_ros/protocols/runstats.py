@@ -123,6 +123,12 @@ class RunSummary:
         loop missed while it was running (its own work, and any pause of its thread or its
         machine that fell within that work) or while another thread of its process held the
         GIL. In :meth:`to_dict` and the warning.
+    paused : int
+        Real time: of ``late``, the deadlines the plant's loop would have met but for the time
+        it worked (computed, published, served) while no thread of its process ran
+        (:attr:`dcsms_ros.protocols.pacer.Pacer.paused`); with ``woke_late``, what the
+        machine took; the rest is an upper bound of the graph's own share. In
+        :meth:`to_dict` and the warning.
     """
 
     samples: int
@@ -139,6 +145,7 @@ class RunSummary:
     delayed: int = 0
     steal: float | None = None
     woke_late: int = 0
+    paused: int = 0
 
     @property
     def late_fraction(self) -> float:
@@ -184,10 +191,11 @@ class RunSummary:
                 out.append(f"{100.0 * self.late_fraction:.3g} % of the samples missed their "
                            f"deadline: this machine did not keep the graph in real time, and "
                            f"the loop that ran had more delay than the configured one")
-                if self.woke_late:
+                if self.woke_late or self.paused:
                     out[-1] += (f"; {self.woke_late} of the {self.late} passed while the "
                                 f"plant's loop waited to run after its wake-up time and "
-                                f"nothing of its process ran")
+                                f"nothing of its process ran, {self.paused} more were pushed "
+                                f"back by such a pause while it worked")
                 if self.steal is not None and self.steal >= STEAL_NOTE:
                     out[-1] += (f" (its hypervisor took {100.0 * self.steal:.3g} % of the "
                                 f"machine's CPU meanwhile: steal time, a host busy with other "
@@ -260,7 +268,8 @@ def summarize(plant: Mapping[str, str], counts: Mapping[str, int] | None,
                       lockstep=plant.get("schedule", "lockstep") == "lockstep",
                       published=sent, overruns=int(plant.get("overruns", "0")),
                       delayed=int(plant.get("delayed_samples", "0")), steal=steal,
-                      woke_late=int(plant.get("woke_late_steps", "0")))
+                      woke_late=int(plant.get("woke_late_steps", "0")),
+                      paused=int(plant.get("paused_steps", "0")))
 
 
 __all__ = ["LATE_WARN", "STALE_WARN", "STEAL_NOTE", "LatencyHistogram", "RunSummary", "summarize"]

@@ -46,7 +46,7 @@ from rclpy.subscription import Subscription
 
 from dcsms_ros.protocols.localbus import LocalBus
 from dcsms_ros.ros.laneinput import PROBE_S
-from dcsms_ros.ros.lanewait import LanePath, LaneWait, idle_late_s, process_cpu_ns
+from dcsms_ros.ros.lanewait import LanePath, LaneWait
 from dcsms_ros.ros.placement import SHARED_CORE_GIL_SWITCH_S, ThreadPlacement
 
 #: Wake-up of the hot thread when nothing arrives (s): bounds the reaction to a stop request.
@@ -118,7 +118,7 @@ class HotLoop(ThreadPlacement):
         self.on_error: Callable[[], object] | None = None
         self.wakeups = 0
         #: How long after the time its last wait was to end the thread ran again while no
-        #: thread of its process ran (s, :func:`.lanewait.idle_late_s`; 0 when it woke before
+        #: thread of its process ran (s, :class:`.lanewait.PauseMeter`; 0 when it woke before
         #: that, or went on without waiting): the OS or the hypervisor did not run it, or
         #: another real-time thread had its core. A delay while another thread of the process
         #: ran (holding the GIL) is left out: that is the graph's own. Measured only when a
@@ -233,7 +233,7 @@ class HotLoop(ThreadPlacement):
         waits = self._lanes  # made by start()
         assert waits is not None
         lanes = waits if waits else None  # the lanes, if any
-        timed = waits.timed
+        meter = waits.meter  # None unless a path's tick is timed
         with ExitStack() as stack:
             for s in subs:
                 stack.enter_context(s.handle)
@@ -246,13 +246,15 @@ class HotLoop(ThreadPlacement):
                 if (bus is None or not bus.pending) and not handles:
                     # a wake() from now on is seen by the next wait, and what an earlier one
                     # announced is delivered by the pass below
-                    end, cpu0 = monotonic() + timeout, process_cpu_ns() if timed else -1
+                    if meter is not None:
+                        now = monotonic()
+                        meter.waiting(now, now + timeout)
                     waits.sleep(timeout)
-                    self._woke(end, cpu0)
+                    self._woke()
                     if self._stop:
                         break
                 elif lanes is not None and lanes.wait(timeout):
-                    self.wakeups += 1  # the lanes time their wait (LaneWait.woke_late_s)
+                    self.wakeups += 1  # the lanes time their wait (their meter is ours)
                     self.woke_late_s = lanes.woke_late_s
                     if self._stop:
                         break
@@ -263,9 +265,11 @@ class HotLoop(ThreadPlacement):
                     for h in handles:
                         ws.add_subscription(h)
                     ws.add_guard_condition(guard)
-                    end, cpu0 = monotonic() + timeout, process_cpu_ns() if timed else -1
+                    if meter is not None:
+                        now = monotonic()
+                        meter.waiting(now, now + timeout)
                     ws.wait(max(int(timeout * 1e9), 0))
-                    self._woke(end, cpu0)
+                    self._woke()
                     if self._stop:
                         break
                     if subs and not ws.get_ready_entities("subscription") and \
@@ -299,12 +303,20 @@ class HotLoop(ThreadPlacement):
                     if lazy[i]:
                         dues[i] = now + (IDLE_S if nxt is None else max(nxt, 0.0))
 
-    def _woke(self, end: float, cpu0_ns: int) -> None:
-        """A wait that was to end at ``end`` (monotonic s), begun when the process had used
-        ``cpu0_ns`` of CPU (-1: the loop does not time its waits), returned."""
+    def _woke(self) -> None:
+        """A wait returned."""
         self.wakeups += 1
-        if cpu0_ns >= 0:
-            self.woke_late_s = idle_late_s(end, cpu0_ns)
+        meter = self._lanes.meter if self._lanes is not None else None
+        if meter is not None:
+            meter.woke()
+            self.woke_late_s = meter.woke_late_s
+
+    def take_paused_s(self) -> float:
+        """How long, since the last call, the loop worked (was not in a wait) while nothing
+        of its process ran (s; :meth:`.lanewait.PauseMeter.take_paused_s`); 0 when no path's
+        tick is ``timed``. Call it from the loop's thread (a tick)."""
+        meter = self._lanes.meter if self._lanes is not None else None
+        return meter.take_paused_s() if meter is not None else 0.0
 
 
 class DrivenContext(Context):

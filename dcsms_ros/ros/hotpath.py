@@ -88,7 +88,7 @@ class HotPath(DetachedReaders):
         self._tick: Callable[[], float | None] | None = None
         #: the tick's deadline only moves later (:meth:`set_tick`)
         self.lazy_tick = False
-        #: the tick reads :attr:`woke_late_s` (:meth:`set_tick`)
+        #: the tick reads :attr:`woke_late_s` and :meth:`take_paused_s` (:meth:`set_tick`)
         self.timed_tick = False
         self.loop: HotLoop | None = None
         self._own = False
@@ -126,6 +126,12 @@ class HotPath(DetachedReaders):
         process ran (s; 0 when it woke in time, when no path of the loop has a ``timed``
         tick, or the path is not served by a loop): :attr:`.hotloop.HotLoop.woke_late_s`."""
         return self.loop.woke_late_s if self.loop is not None else 0.0
+
+    def take_paused_s(self) -> float:
+        """How long, since the last call, the loop serving this path worked while nothing of
+        its process ran (s; 0 as for :attr:`woke_late_s`):
+        :meth:`.hotloop.HotLoop.take_paused_s`. From the path's tick only."""
+        return self.loop.take_paused_s() if self.loop is not None else 0.0
 
     @property
     def driven(self) -> bool:
@@ -275,9 +281,10 @@ class HotPath(DetachedReaders):
         which each input moves later. Asked at every wake-up it was the lock and three calls
         a sample (docs/performance.md, "Fewer calls a sample").
 
-        ``timed``: the tick reads :attr:`woke_late_s` (the plant's pacer), so the loop reads
-        the process's CPU time around each wait, ~1-2 us a wake-up that a controller's
-        40 us budget need not pay (a loop without a timed path reports 0)."""
+        ``timed``: the tick reads :attr:`woke_late_s` and :meth:`take_paused_s` (the plant's
+        pacer), so the loop reads the process's CPU time around each wait, ~1-2 us a wake-up
+        that a controller's 40 us budget need not pay (a loop without a timed path reports
+        0)."""
         self._tick = tick
         self.lazy_tick = lazy
         self.timed_tick = timed

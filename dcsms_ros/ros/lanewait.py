@@ -29,19 +29,52 @@ def process_cpu_ns() -> int:
     return time.clock_gettime_ns(_PROCESS_CPU)
 
 
-def idle_late_s(end: float, cpu0_ns: int) -> float:
-    """How long after ``end`` (monotonic s), the time a wait was to end, the waiting thread
-    ran again, less the CPU time the process used since ``cpu0_ns`` (:func:`process_cpu_ns`
-    read before the wait): at least that long no thread of the process ran. The rest of the
-    delay another thread of the process may have caused: composed, the executor's thread
-    holding the GIL in a long C call, which the woken driver (same core) preempts but cannot
-    run Python before it returns. Measured in a composed run, the wake-ups ≥ 0.3 ms late split
-    cleanly: the process used about the whole delay (a GIL hold) or none of it (the machine
-    paused; docs/performance.md, "The executor's C calls")."""
-    late = time.monotonic() - end
-    if late <= 0.0:
-        return 0.0
-    return max(late - (process_cpu_ns() - cpu0_ns) * 1e-9, 0.0)
+class PauseMeter:
+    """Where a timed hot loop lost time while no thread of its process ran: after a wait's
+    timeout (:attr:`woke_late_s`) and while it worked between waits (:meth:`take_paused_s`).
+
+    Each span's wall time less the CPU time the whole process used meanwhile (every thread) is
+    time at least that long no thread of it ran: the OS or the hypervisor did not run it, or
+    another real-time thread had its core. The rest of a delay another thread of the process
+    may have caused: composed, the executor's thread holding the GIL in a long C call, which
+    the woken driver (same core) preempts but cannot run Python before it returns. Measured
+    in a composed run, the wake-ups >= 0.3 ms late split cleanly: the process used about the
+    whole delay (a GIL hold) or none of it (the machine paused; docs/performance.md, "The
+    executor's C calls"). A pause that comes while the loop works (a sample's computation)
+    delays it as much as one that comes while it sleeps, and is counted apart. The meter
+    reads the process's CPU clock once before and once after each wait (~0.7 us a read here)
+    and once at each :meth:`take_paused_s`.
+    """
+
+    def __init__(self) -> None:
+        #: how long after its timeout the last wait returned with no thread of the process
+        #: running (s; 0: before it)
+        self.woke_late_s = 0.0
+        self._paused_s = 0.0
+        self._t, self._cpu = time.monotonic(), process_cpu_ns()
+        self._end, self._cpu_wait = 0.0, self._cpu
+
+    def waiting(self, now: float, end: float) -> None:
+        """A wait begins at ``now`` (monotonic s) and is to end at ``end``: the work since the
+        last wake-up ends."""
+        cpu = process_cpu_ns()
+        self._paused_s += max(now - self._t - (cpu - self._cpu) * 1e-9, 0.0)
+        self._end, self._cpu_wait = end, cpu
+
+    def woke(self) -> None:
+        """The wait returned (its timeout, a message or a wake-up)."""
+        now, cpu = time.monotonic(), process_cpu_ns()
+        late = now - self._end
+        self.woke_late_s = max(late - (cpu - self._cpu_wait) * 1e-9, 0.0) if late > 0.0 else 0.0
+        self._t, self._cpu = now, cpu
+
+    def take_paused_s(self) -> float:
+        """How long, since the last call, the loop worked (was not in a wait) while no thread
+        of its process ran (s); the next call counts from now."""
+        now, cpu = time.monotonic(), process_cpu_ns()
+        out = self._paused_s + max(now - self._t - (cpu - self._cpu) * 1e-9, 0.0)
+        self._paused_s, self._t, self._cpu = 0.0, now, cpu
+        return out
 
 
 #: Longest wait (s) on the lanes while a subscription also has a DDS writer without a lane
@@ -69,8 +102,8 @@ class LaneWait:
         How many of the loop's paths have subscriptions to serve: if a path without lanes
         has some, the loop must wait on DDS.
     timed : bool
-        Measure :attr:`woke_late_s` (two reads of the process's CPU time a wait); else it
-        stays 0.
+        Measure the loop's pauses (:attr:`meter`, which :attr:`woke_late_s` reads); else
+        none and it stays 0.
     """
 
     def __init__(self, paths: Sequence[LanePath], serving: int, timed: bool = False) -> None:
@@ -82,9 +115,14 @@ class LaneWait:
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._fds = [self._wake_r, *(fd for p in self.paths for fd in p.lane_fds())]
         self._mode, self._mode_until = DDS, -1.0
-        #: how long after its timeout the last :meth:`wait` returned with no thread of the
-        #: process running (s; 0: before it, or not ``timed``; :func:`idle_late_s`)
-        self.woke_late_s = 0.0
+        #: the loop's pause meter (None: not ``timed``); the loop's other waits use it too
+        self.meter = PauseMeter() if timed else None
+
+    @property
+    def woke_late_s(self) -> float:
+        """How long after its timeout the last wait returned with no thread of the process
+        running (s; 0: before it, or not ``timed``: :attr:`PauseMeter.woke_late_s`)."""
+        return self.meter.woke_late_s if self.meter is not None else 0.0
 
     def __bool__(self) -> bool:
         return bool(self.paths)
@@ -114,10 +152,12 @@ class LaneWait:
             return False
         if mode != LANES:
             timeout = min(timeout, DDS_POLL_S)
-        cpu0 = process_cpu_ns() if self.timed else -1
+        meter = self.meter
+        if meter is not None:
+            meter.waiting(now, now + max(timeout, 0.0))
         ready, _, _ = select.select(self._fds, (), (), max(timeout, 0.0))
-        if cpu0 >= 0:
-            self.woke_late_s = idle_late_s(now + max(timeout, 0.0), cpu0)
+        if meter is not None:
+            meter.woke()
         if self._wake_r in ready:
             with contextlib.suppress(OSError):
                 os.read(self._wake_r, 4096)
@@ -148,4 +188,4 @@ class LaneWait:
         self._wake_r = self._wake_w = -1
 
 
-__all__ = ["DDS_POLL_S", "LanePath", "LaneWait"]
+__all__ = ["DDS_POLL_S", "LanePath", "LaneWait", "PauseMeter", "process_cpu_ns"]

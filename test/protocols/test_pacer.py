@@ -95,6 +95,26 @@ def test_a_loop_that_woke_in_time_has_no_late_wake_ups() -> None:
     assert p.overruns == 31 and p.woke_late == 31
 
 
+@pytest.mark.parametrize(("now", "woke_late_s", "paused_s", "late", "woke", "paused"), [
+    (0.0052, 0.0, 0.004, 4, 0, 4),  # a 4 ms pause while it worked: every late one is the pause's
+    (0.0062, 0.0, 0.004, 5, 0, 4),  # and 1 ms of its own work more: one is its own
+    (0.0100, 0.002, 0.003, 9, 2, 3),  # asleep 2 ms late, paused 3 ms before: 4 its own
+    (0.0052, 0.0, 0.0002, 4, 0, 0),  # a pause shorter than the rest of a period moves none
+    (0.0100, 0.0095, 0.004, 9, 9, 0),  # the late wake-up took them all: none left to pause
+])
+def test_a_pause_while_the_loop_worked_pushed_back_the_deadlines_after_it(
+        now: float, woke_late_s: float, paused_s: float, late: int, woke: int,
+        paused: int) -> None:
+    """Of the deadlines missed at ``now``, :attr:`Pacer.woke_late` counts those that passed
+    after the late wake-up began, :attr:`Pacer.paused` those in the pause before it (the
+    deadlines the loop would have met without either), the rest are the loop's own."""
+    p = Pacer(1000.0, max_burst=1000)
+    p.start(0.0)
+    assert p.due(0.0, 0) == 1
+    assert p.due(now, 1, woke_late_s, paused_s) == late + 1
+    assert (p.late, p.woke_late, p.paused) == (late, woke, paused)
+
+
 def test_held_inputs_go_stale_and_count_it_once() -> None:
     """A force older than the timeout is zero; each fresh -> stale transition is one event."""
     h = HeldInputs(["a", "b"], timeout_s=0.01, zero=0.0)

@@ -175,21 +175,23 @@ def test_a_late_warning_names_the_hypervisor_s_share_from_two_percent(
     assert s.to_dict()["steal"] == steal
 
 
-@pytest.mark.parametrize("woke", [0, 1, 3900])
-def test_a_late_warning_says_how_many_passed_while_the_loop_was_not_run(woke: int) -> None:
+@pytest.mark.parametrize(("woke", "paused"), [(0, 0), (1, 0), (3900, 0), (0, 7), (12, 300)])
+def test_a_late_warning_says_how_many_the_machine_took(woke: int, paused: int) -> None:
     """The plant's ``woke_late_steps`` (of its late samples, those whose deadline passed
-    while its loop waited to run after its wake-up time and nothing of its process ran) is in
-    the JSON, and the late-sample
-    warning names it when there are any."""
+    while its loop waited to run after its wake-up time and nothing of its process ran) and
+    ``paused_steps`` (those a pause while it worked pushed back) are in the JSON, and the
+    late-sample warning names them when there are any."""
     plant = {"sample": "40000", "late_steps": "4394", "woke_late_steps": str(woke),
-             "schedule": "realtime"}
+             "paused_steps": str(paused), "schedule": "realtime"}
     s = summarize(plant, None, [])
     w = s.warning()
-    assert w is not None and s.to_dict()["woke_late"] == woke
+    assert w is not None and (s.to_dict()["woke_late"], s.to_dict()["paused"]) == (woke, paused)
     assert (f"{woke} of the 4394 passed while the plant's loop waited to run after its "
-            f"wake-up time and nothing of its process ran" in w) == bool(woke)
-    assert summarize({k: v for k, v in plant.items() if k != "woke_late_steps"}, None,
-                     []).woke_late == 0  # a plant from before the count
+            f"wake-up time and nothing of its process ran, {paused} more were pushed back by "
+            f"such a pause while it worked" in w) == bool(woke or paused)
+    old = summarize({k: v for k, v in plant.items()
+                     if k not in ("woke_late_steps", "paused_steps")}, None, [])
+    assert (old.woke_late, old.paused) == (0, 0)  # a plant from before the counts
 
 
 def test_steal_alone_does_not_warn() -> None:
