@@ -14,7 +14,7 @@ with no work at all would have missed them too (on this package's virtual machin
 whole-machine pauses of ~3 ms; docs/performance.md, "Who makes composed samples late"); those
 that a pause while the loop worked pushed back are counted apart too (:attr:`Pacer.paused`).
 A delay while another thread of the process ran, holding the GIL, is the process's own and is
-not counted in either (the loop tells which, :class:`dcsms_ros.ros.lanewait.PauseMeter`).
+not counted in either (the loop tells which, :class:`dcsms_ros.ros.pausemeter.PauseMeter`).
 Inputs (force commands) are *held*: the newest value of each is used until it is older than
 ``timeout_s``, then it counts as zero (stale).
 """

@@ -118,7 +118,7 @@ class HotLoop(ThreadPlacement):
         self.on_error: Callable[[], object] | None = None
         self.wakeups = 0
         #: How long after the time its last wait was to end the thread ran again while no
-        #: thread of its process ran (s, :class:`.lanewait.PauseMeter`; 0 when it woke before
+        #: thread of its process ran (s, :class:`.pausemeter.PauseMeter`; 0 when it woke before
         #: that, or went on without waiting): the OS or the hypervisor did not run it, or
         #: another real-time thread had its core. A delay while another thread of the process
         #: ran (holding the GIL) is left out: that is the graph's own. Measured only when a
@@ -313,7 +313,7 @@ class HotLoop(ThreadPlacement):
 
     def take_paused_s(self) -> float:
         """How long, since the last call, the loop worked (was not in a wait) while nothing
-        of its process ran (s; :meth:`.lanewait.PauseMeter.take_paused_s`); 0 when no path's
+        of its process ran (s; :meth:`.pausemeter.PauseMeter.take_paused_s`); 0 when no path's
         tick is ``timed``. Call it from the loop's thread (a tick)."""
         meter = self._lanes.meter if self._lanes is not None else None
         return meter.take_paused_s() if meter is not None else 0.0

@@ -16,6 +16,7 @@ from rclpy.node import Node
 from std_msgs.msg import Header
 
 from dcsms_ros.ros.hotpath import GIL_SWITCH_S, DrivenContext, HotPath
+from dcsms_ros.ros.pausemeter import process_cpu_ns
 
 
 def test_a_hot_loop_shortens_the_gil_switch_interval(ctx) -> None:
@@ -89,15 +90,18 @@ def test_a_hot_loop_counts_a_pause_within_its_tick_apart_from_a_late_wake_up(
     hot = HotPath(node, threading.Lock())
     seen: list[tuple[float, float, float]] = []
     spans: list[Callable[[], tuple[float, float]]] = []
+    idle: list[float] = []
 
     def tick() -> float:
         seen.append((time.monotonic(), hot.woke_late_s, hot.take_paused_s()))
         if len(seen) == 50:
             spans.append(process_pause(0.005, 0.04))
             hot.take_paused_s()  # the pauser's start blocked the tick: not a machine's pause
-            end = time.monotonic() + 0.08
+            t0, c0 = time.monotonic(), process_cpu_ns()
+            end = t0 + 0.08
             while time.monotonic() < end:  # the tick's own work, 80 ms
                 pass
+            idle.append(time.monotonic() - t0 - (process_cpu_ns() - c0) * 1e-9)
         return 0.002
 
     hot.set_tick(tick, timed=True)
@@ -111,8 +115,9 @@ def test_a_hot_loop_counts_a_pause_within_its_tick_apart_from_a_late_wake_up(
         node.destroy_node()
     p0, p1 = spans[0]()
     _, woke, paused = seen[50]
-    # above the pause: what the hypervisor took from the 80 ms of work (steal, 2-4 % here)
-    assert p1 - p0 - 0.005 < paused < p1 - p0 + 0.02, (paused, p1 - p0)
+    # the pause, and whatever else of the 80 ms the process did not run (other processes,
+    # steal), never more than that
+    assert p1 - p0 - 0.005 < paused < idle[0] + 0.003, (paused, p1 - p0, idle)
     # the pause ended before the 2 ms sleep after the work began: not counted there again
     assert woke < 0.5 * (p1 - p0), (woke, p1 - p0)
     typical = sorted(x for _, _, x in seen[10:50])[20]

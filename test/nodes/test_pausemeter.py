@@ -1,0 +1,53 @@
+"""`ros/pausemeter.py`: a loop's time lost while no thread of its process ran, against a
+whole-process stop (SIGSTOP, as a paused virtual machine) and a GIL holder of the same process."""
+
+from __future__ import annotations
+
+import time
+
+from dcsms_ros.ros.pausemeter import PauseMeter, process_cpu_ns
+
+
+def _work(seconds: float) -> None:
+    """Run Python for ``seconds`` of wall time (a loop computing a sample)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pass
+
+
+def test_a_pause_while_the_loop_works_is_counted_apart_from_its_sleeps(process_pause):
+    """``take_paused_s``: the time the loop worked (between a wake-up and the next wait)
+    while the whole process was stopped; a sleep, however long, is not part of it, and a
+    call counts only from the previous one."""
+    m = PauseMeter()
+    m.take_paused_s()
+    now = time.monotonic()
+    m.waiting(now, now + 0.05)
+    time.sleep(0.05)  # asleep: no thread of the process runs, by the loop's choice
+    m.woke()
+    assert m.woke_late_s < 0.005 and m.take_paused_s() < 0.002
+    span = process_pause(0.01, 0.05)
+    m.take_paused_s()  # the pauser's start blocked this thread: not a pause of the machine
+    t0, c0 = time.monotonic(), process_cpu_ns()
+    _work(0.1)  # the pause falls within the work
+    idle = time.monotonic() - t0 - (process_cpu_ns() - c0) * 1e-9
+    p0, p1 = span()
+    paused = m.take_paused_s()
+    # the pause, and whatever else of the work's 0.1 s the process did not run (other
+    # processes, steal: 2-4 % here, more beside a test run), never more than that
+    assert p1 - p0 - 0.005 < paused < idle + 0.002, (paused, p1 - p0, idle)
+    assert m.take_paused_s() < 0.002  # counted once
+
+
+def test_work_held_up_by_another_thread_of_its_process_is_not_paused(gil_holder):
+    """A loop that waited for the GIL while another thread ran a long C call was held up by
+    its own process, not by the machine: that thread's CPU is left out."""
+    m = PauseMeter()
+    m.take_paused_s()
+    span = gil_holder(0.005)
+    while len(span) < 3:  # filled once the hold ended
+        _work(0.001)
+    paused = m.take_paused_s()
+    assert span[2] > 0.03  # the holder ran 30 ms or more of the loop's work time
+    # counted as a pause, the hold would be all of it; the machine's steal may add a little
+    assert paused < 0.5 * span[2], (paused, span[2])
