@@ -47,6 +47,7 @@ from rclpy.subscription import Subscription
 from dcsms_ros.protocols.localbus import LocalBus
 from dcsms_ros.ros.laneinput import PROBE_S
 from dcsms_ros.ros.lanewait import LanePath, LaneWait
+from dcsms_ros.ros.pausemeter import PauseMeter
 from dcsms_ros.ros.placement import SHARED_CORE_GIL_SWITCH_S, ThreadPlacement
 
 #: Wake-up of the hot thread when nothing arrives (s): bounds the reaction to a stop request.
@@ -247,10 +248,9 @@ class HotLoop(ThreadPlacement):
                     # a wake() from now on is seen by the next wait, and what an earlier one
                     # announced is delivered by the pass below
                     if meter is not None:
-                        now = monotonic()
-                        meter.waiting(now, now + timeout)
+                        meter.waiting(timeout)
                     waits.sleep(timeout)
-                    self._woke()
+                    self._woke(meter)
                     if self._stop:
                         break
                 elif lanes is not None and lanes.wait(timeout):
@@ -266,10 +266,9 @@ class HotLoop(ThreadPlacement):
                         ws.add_subscription(h)
                     ws.add_guard_condition(guard)
                     if meter is not None:
-                        now = monotonic()
-                        meter.waiting(now, now + timeout)
+                        meter.waiting(timeout)
                     ws.wait(max(int(timeout * 1e9), 0))
-                    self._woke()
+                    self._woke(meter)
                     if self._stop:
                         break
                     if subs and not ws.get_ready_entities("subscription") and \
@@ -303,10 +302,9 @@ class HotLoop(ThreadPlacement):
                     if lazy[i]:
                         dues[i] = now + (IDLE_S if nxt is None else max(nxt, 0.0))
 
-    def _woke(self) -> None:
-        """A wait returned."""
+    def _woke(self, meter: PauseMeter | None) -> None:
+        """A wait returned (``meter``: the loop's, None when it does not time its waits)."""
         self.wakeups += 1
-        meter = self._lanes.meter if self._lanes is not None else None
         if meter is not None:
             meter.woke()
             self.woke_late_s = meter.woke_late_s

@@ -52,7 +52,6 @@ class LaneWait:
     """
 
     def __init__(self, paths: Sequence[LanePath], serving: int, timed: bool = False) -> None:
-        self.timed = timed
         self.paths = [p for p in paths if p.lane_fds()]
         self._all_served = len(self.paths) >= serving
         # the wake-up pipe, also for a loop without lanes that has no DDS reader to wait on
@@ -99,7 +98,7 @@ class LaneWait:
             timeout = min(timeout, DDS_POLL_S)
         meter = self.meter
         if meter is not None:
-            meter.waiting(now, now + max(timeout, 0.0))
+            meter.waiting(timeout)
         ready, _, _ = select.select(self._fds, (), (), max(timeout, 0.0))
         if meter is not None:
             meter.woke()

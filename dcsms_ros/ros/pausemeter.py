@@ -39,27 +39,30 @@ class PauseMeter:
         self._t, self._cpu = time.monotonic(), process_cpu_ns()
         self._end, self._cpu_wait = 0.0, self._cpu
 
-    def waiting(self, now: float, end: float) -> None:
-        """A wait begins at ``now`` (monotonic s) and is to end at ``end``: the work since the
-        last wake-up ends."""
-        cpu = process_cpu_ns()
-        self._paused_s += max(now - self._t - (cpu - self._cpu) * 1e-9, 0.0)
-        self._end, self._cpu_wait = end, cpu
+    def waiting(self, timeout_s: float) -> None:
+        """A wait of at most ``timeout_s`` (s) begins: the work since the last wake-up ends."""
+        now, cpu = time.monotonic(), process_cpu_ns()
+        self._paused_s += _unrun_s(now - self._t, cpu - self._cpu)
+        self._end, self._cpu_wait = now + max(timeout_s, 0.0), cpu
 
     def woke(self) -> None:
         """The wait returned (its timeout, a message or a wake-up)."""
         now, cpu = time.monotonic(), process_cpu_ns()
-        late = now - self._end
-        self.woke_late_s = max(late - (cpu - self._cpu_wait) * 1e-9, 0.0) if late > 0.0 else 0.0
+        self.woke_late_s = _unrun_s(now - self._end, cpu - self._cpu_wait)
         self._t, self._cpu = now, cpu
 
     def take_paused_s(self) -> float:
         """How long, since the last call, the loop worked (was not in a wait) while no thread
         of its process ran (s); the next call counts from now."""
         now, cpu = time.monotonic(), process_cpu_ns()
-        out = self._paused_s + max(now - self._t - (cpu - self._cpu) * 1e-9, 0.0)
+        out = self._paused_s + _unrun_s(now - self._t, cpu - self._cpu)
         self._paused_s, self._t, self._cpu = 0.0, now, cpu
         return out
 
+
+def _unrun_s(wall_s: float, cpu_ns: int) -> float:
+    """Of ``wall_s`` (s; none if not positive), the time at least that long no thread of the
+    process ran, which used ``cpu_ns`` of CPU meanwhile."""
+    return max(wall_s - cpu_ns * 1e-9, 0.0) if wall_s > 0.0 else 0.0
 
 __all__ = ["PauseMeter", "process_cpu_ns"]

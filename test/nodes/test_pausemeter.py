@@ -21,8 +21,7 @@ def test_a_pause_while_the_loop_works_is_counted_apart_from_its_sleeps(process_p
     call counts only from the previous one."""
     m = PauseMeter()
     m.take_paused_s()
-    now = time.monotonic()
-    m.waiting(now, now + 0.05)
+    m.waiting(0.05)
     time.sleep(0.05)  # asleep: no thread of the process runs, by the loop's choice
     m.woke()
     assert m.woke_late_s < 0.005 and m.take_paused_s() < 0.002
@@ -44,10 +43,13 @@ def test_work_held_up_by_another_thread_of_its_process_is_not_paused(gil_holder)
     its own process, not by the machine: that thread's CPU is left out."""
     m = PauseMeter()
     m.take_paused_s()
+    t0 = time.monotonic()
     span = gil_holder(0.005)
     while len(span) < 3:  # filled once the hold ended
         _work(0.001)
     paused = m.take_paused_s()
+    wall = time.monotonic() - t0
     assert span[2] > 0.03  # the holder ran 30 ms or more of the loop's work time
-    # counted as a pause, the hold would be all of it; the machine's steal may add a little
-    assert paused < 0.5 * span[2], (paused, span[2])
+    # the holder's CPU is left out of the work's time: counted as a pause, the hold would be
+    # in it (a fixed half of the hold failed once in 8 runs, the machine stalling 166 ms)
+    assert paused < wall - span[2] + 0.002, (paused, wall, span[2])
