@@ -10,8 +10,15 @@ wake-up of the thread and the time the core is taken from it. ``--latency-us N``
 wake-up latency as ``DCSMS_CPU_LATENCY_US=N`` makes the graph hold it
 (``dcsms_ros/ros/cpulatency.py``).
 
+``--charged`` measures instead the machine's pauses that land on a running thread: one
+thread spins on the clocks (default scheduler, for ``--seconds``) and every gap of 0.3 ms or
+more between two reads is reported with the CPU time charged to the thread across it. A gap
+the OS made (another thread had the core, a stop signal) is charged nothing; one the
+hypervisor made while the virtual CPU ran the thread is charged in full, as if the thread
+had worked (``dcsms_ros/ros/pausemeter.py`` tells those apart only while a loop waits).
+
 ``python bench/timer_floor.py [--seconds S] [--work-us W ...] [--rt-priority P]
-[--latency-us N]``.
+[--latency-us N] [--charged]``.
 """
 
 from __future__ import annotations
@@ -99,6 +106,40 @@ def measure(seconds: float, work_us: float, rt_priority: int = 50,
     return out
 
 
+#: The shortest gap between two clock reads of the spinning thread reported (s).
+GAP_S = 3e-4
+
+
+def charged_gaps(seconds: float) -> dict[str, Any]:
+    """Gaps of at least :data:`GAP_S` in a thread that reads the monotonic and its own CPU
+    clock back to back for ``seconds``, and the CPU charged to it across each.
+
+    Returns
+    -------
+    dict
+        ``seconds``; ``gaps``: a list of (wall us, charged us) per gap; ``charged``: how
+        many were charged at least 80 % of their wall time (the thread was on a core, so
+        counted as running, while it did not run: a pause of the virtual machine).
+    """
+    mono, own = time.monotonic_ns, time.thread_time_ns
+    gaps: list[tuple[float, float]] = []
+
+    def run() -> None:
+        end = mono() + int(seconds * 1e9)
+        w0, c0 = mono(), own()
+        while w0 < end:
+            w, c = mono(), own()
+            if w - w0 >= GAP_S * 1e9:
+                gaps.append(((w - w0) * 1e-3, (c - c0) * 1e-3))
+            w0, c0 = w, c
+
+    th = threading.Thread(target=run, name="charged-gaps")
+    th.start()
+    th.join()
+    return {"seconds": seconds, "gaps": gaps,
+            "charged": sum(1 for w, c in gaps if c >= 0.8 * w)}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0)
@@ -106,7 +147,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rt-priority", type=int, default=50)
     ap.add_argument("--latency-us", type=int, default=None,
                     help="hold this CPU wake-up latency (us; default: the kernel's)")
+    ap.add_argument("--charged", action="store_true",
+                    help="the pauses charged to a running thread as CPU, not the floor")
     a = ap.parse_args(argv)
+    if a.charged:
+        print(json.dumps(charged_gaps(a.seconds)))
+        return 0
     for w in a.work_us:
         r = measure(a.seconds, w, a.rt_priority, a.latency_us)
         print(json.dumps(r))

@@ -1,4 +1,5 @@
-"""`bench/timer_floor.py`: the ideal periodic worker counts late samples as the graph does."""
+"""`bench/timer_floor.py`: the ideal periodic worker counts late samples as the graph does; a
+pause the OS makes is charged nothing to a spinning thread (``--charged``)."""
 
 from __future__ import annotations
 
@@ -30,3 +31,14 @@ def test_a_short_worker_wakes_after_its_deadlines(work_us: float) -> None:
     assert 0.0 <= p50 <= p99 <= p999
     assert r["samples"] == 1000 and 0 <= r["late"] < r["samples"]
     assert r["fifo"] is False and r["latency_held"] is None
+
+
+def test_a_stopped_process_s_gap_is_not_charged_to_its_spinning_thread(process_pause) -> None:
+    """A whole-process stop (SIGSTOP) takes the thread off its core: the gap is charged
+    nothing, so a gap charged in full is one the hypervisor made while the thread ran."""
+    span = process_pause(0.1, 0.05)
+    out = timer_floor.charged_gaps(0.4)
+    p0, p1 = span()
+    stop = [(w, c) for w, c in out["gaps"] if w >= (p1 - p0) * 1e6 - 5000]
+    assert stop, (out, p1 - p0)
+    assert all(c < 0.2 * w for w, c in stop), stop

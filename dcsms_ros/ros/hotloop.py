@@ -120,10 +120,11 @@ class HotLoop(ThreadPlacement):
         self.wakeups = 0
         #: How long after the time its last wait was to end the thread ran again while no
         #: thread of its process ran (s, :class:`.pausemeter.PauseMeter`; 0 when it woke before
-        #: that, or went on without waiting): the OS or the hypervisor did not run it, or
-        #: another real-time thread had its core. A delay while another thread of the process
-        #: ran (holding the GIL) is left out: that is the graph's own. Measured only when a
-        #: path's tick is ``timed`` (:meth:`.hotpath.HotPath.set_tick`), else 0.
+        #: that, or went on without waiting): the OS or the hypervisor did not run it (a pause
+        #: charged to the waiting thread as CPU included), or another real-time thread had its
+        #: core. A delay while another thread of the process ran (holding the GIL) is left
+        #: out: that is the graph's own. Measured only when a path's tick is ``timed``
+        #: (:meth:`.hotpath.HotPath.set_tick`), else 0.
         self.woke_late_s = 0.0
         self._subs: list[Subscription] = []
         self._serving: list[Served] = []

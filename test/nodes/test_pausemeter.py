@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import time
 
-from dcsms_ros.ros.pausemeter import PauseMeter, process_cpu_ns
+import pytest
+
+from dcsms_ros.ros.pausemeter import PauseMeter, _ran_while_waiting_ns, process_cpu_ns
 
 
 def _work(seconds: float) -> None:
@@ -53,3 +55,36 @@ def test_work_held_up_by_another_thread_of_its_process_is_not_paused(gil_holder)
     # the holder's CPU is left out of the work's time: counted as a pause, the hold would be
     # in it (a fixed half of the hold failed once in 8 runs, the machine stalling 166 ms)
     assert paused < wall - span[2] + 0.002, (paused, wall, span[2])
+
+
+def test_a_wait_held_up_by_another_thread_is_the_process_s_and_its_asking_too(gil_holder):
+    """A wait whose end another thread's C call held up (the GIL): the waiter, asking for
+    the GIL every switch interval meanwhile, was charged CPU for it, less than the holder
+    used; none of the delay is the machine's, unless other processes took the CPU from the
+    holder."""
+    m = PauseMeter()
+    own0 = time.thread_time()
+    span = gil_holder(0.0)
+    m.waiting(0.001)
+    time.sleep(0.001)  # the holder takes the GIL meanwhile: the sleep returns after its call
+    m.woke()
+    own = time.thread_time() - own0
+    t1 = time.monotonic()
+    while len(span) < 3:
+        time.sleep(0.001)
+    t0, _, cpu = span
+    assert cpu > 0.03
+    assert own < cpu, (own, cpu)  # what the rule counts as the process's asking, at most
+    assert m.woke_late_s <= max(t1 - t0 - cpu, 0.0) + 0.003, (m.woke_late_s, t1 - t0, cpu)
+
+
+@pytest.mark.parametrize(("process_us", "own_us", "ran_us"), [
+    (0, 0, 0),
+    (3000, 3000, 0),  # only the waiter was charged: the machine paused it on its core
+    (3000, 0, 3000),  # only other threads ran: the process's own delay
+    (3000, 1200, 3000),  # the waiter asked for the GIL while the others ran
+    (3000, 2600, 800),  # beyond the others' 400 us, the waiter's charge is the machine's
+])
+def test_a_wait_s_cpu_is_the_process_s_up_to_twice_the_other_threads(
+        process_us: int, own_us: int, ran_us: int) -> None:
+    assert _ran_while_waiting_ns(process_us * 1000, own_us * 1000) == ran_us * 1000
