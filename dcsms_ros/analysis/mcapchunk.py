@@ -6,7 +6,6 @@ from __future__ import annotations
 import time
 import zlib
 from array import array
-from dataclasses import dataclass, field
 from typing import IO, Any
 
 import numpy as np
@@ -14,28 +13,57 @@ import numpy as np
 from dcsms_ros.analysis.mcaprecords import OPCODES, U16, U32, U64, map_field, record, string_field
 
 
-@dataclass
 class Chunk:
     """Records of the chunk being filled: their bytes and per-channel index entries.
 
-    The bytes grow in one ``bytearray`` and single messages' index entries in an
-    ``array('Q')``: closing a chunk then needs no ``bytes.join`` over tens of thousands of
-    parts and no list-to-array conversion, the two steps that hold the GIL (3 ms each on a
-    4 MB chunk of the graph's streams); compression and the CRC release it.
+    The bytes are written into ``buf`` from its start, ``size`` of them used, and single
+    messages' index entries go into an ``array('Q')``: closing a chunk then needs no
+    ``bytes.join`` over tens of thousands of parts and no list-to-array conversion, the two
+    steps that hold the GIL (3 ms each on a 4 MB chunk of the graph's streams); compression
+    and the CRC release it. ``buf`` grows only when it is short (:meth:`reserve`), so a buffer
+    kept from a written chunk (:class:`.mcapwrite.McapBagWriter`) takes the next one's records
+    without a new allocation: a growing ``bytearray`` was copied into new memory, and its
+    first touch of those pages faulted 88-760 times in one write, at ~9 us a fault on this
+    virtual machine (0.4-7.3 ms in a node's real-time hot thread; docs/performance.md,
+    fifty-eighth session).
+
+    Parameters
+    ----------
+    buf : bytearray
+        The buffer to fill (its contents are overwritten).
     """
 
-    data: bytearray = field(default_factory=bytearray)
-    index: dict[int, list[np.ndarray]] = field(default_factory=dict)
-    #: per channel, the [log time, offset] pairs of single messages not yet in ``index``
-    singles: dict[int, array[int]] = field(default_factory=dict)
-    t0: int = 2**63 - 1
-    t1: int = 0
-    #: when the chunk was opened (``time.monotonic``, s)
-    born: float = field(default_factory=time.monotonic)
+    def __init__(self, buf: bytearray) -> None:
+        self.buf = buf
+        #: bytes of ``buf`` used
+        self.size = 0
+        self.index: dict[int, list[np.ndarray]] = {}
+        #: per channel, the [log time, offset] pairs of single messages not yet in ``index``
+        self.singles: dict[int, array[int]] = {}
+        self.t0 = 2**63 - 1
+        self.t1 = 0
+        #: when the chunk was opened (``time.monotonic``, s)
+        self.born = time.monotonic()
 
     @property
-    def size(self) -> int:
-        return len(self.data)
+    def data(self) -> memoryview:
+        """The records so far (a view of ``buf``)."""
+        return memoryview(self.buf)[:self.size]
+
+    def reserve(self, n: int) -> bytearray:
+        """Room for ``n`` more bytes: a buffer twice as large (or more), the records copied,
+        if ``buf`` is short. Returns ``buf``."""
+        if self.size + n > len(self.buf):
+            grown = bytearray(max(2 * len(self.buf), self.size + n))
+            grown[:self.size] = self.data
+            self.buf = grown
+        return self.buf
+
+    def put(self, data: bytes | memoryview) -> None:
+        """Append ``data`` (whole records)."""
+        end = self.size + len(data)
+        self.reserve(len(data))[self.size:end] = data
+        self.size = end
 
     def move_singles(self, c: int) -> None:
         """Move channel ``c``'s single-message entries into the index arrays."""

@@ -59,6 +59,12 @@ ZSTD_LEVEL = 1
 #: chunk: a recorder killed before it closed its bag lost its last ~2 s (:mod:`.bagrecover`
 #: reads the rest back), not its last 4 MB (a slow topic's whole recording).
 CHUNK_MAX_AGE_S = 2.0
+#: First size (bytes) of a chunk's buffer in a writer that does not defer its flush (it
+#: doubles as needed): a short bag touches no more memory than it holds.
+FIRST_CHUNK_BYTES = 64 << 10
+#: Written chunks' buffers a writer keeps for its next chunks (with ``defer_flush`` it makes
+#: them at once, besides the open chunk's).
+SPARE_BUFFERS = 2
 #: libyaml's safe dumper where PyYAML has it (the same text; a run's metadata 24 -> 6 ms).
 _YAML: dict[str, Any] = {"Dumper": getattr(yaml, "CSafeDumper", yaml.SafeDumper),
                          "sort_keys": True}
@@ -80,7 +86,9 @@ class McapBagWriter:
         the :meth:`write` that filled them. A node's part recorder writes on its real-time hot
         thread, where closing a 4 MB chunk took 9-12 ms (a gap of 20+ samples at 2 kHz, every
         1.75 s, measured when the composed recorder wrote on its driver thread); the node's
-        executor calls :meth:`flush` (:data:`CHUNK_MAX_AGE_S`).
+        executor calls :meth:`flush` (:data:`CHUNK_MAX_AGE_S`). Such a writer also makes its
+        chunk buffers at once, full size (:data:`SPARE_BUFFERS` + 1), so no write on the hot
+        thread touches a new page (:class:`.mcapchunk.Chunk`).
 
     Attributes
     ----------
@@ -102,7 +110,11 @@ class McapBagWriter:
             self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
         self.topics: dict[str, Topic] = {}
         self._schemas: dict[str, tuple[int, bytes]] = {}
-        self._chunk = Chunk()
+        #: buffers of written chunks, for the next ones (:meth:`_write_chunk`)
+        self._spare: list[bytearray] = []
+        if defer_flush:
+            self._spare = [bytearray(chunk_bytes) for _ in range(SPARE_BUFFERS)]
+        self._chunk = Chunk(self._buffer())
         #: what waits to go to the file, in file order: records (schemas, channels) and chunks
         self._pending: list[bytes | Chunk] = []
         self._chunk_indexes: list[bytes] = []
@@ -183,34 +195,40 @@ class McapBagWriter:
 
     def _append(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
         # a recorder's per-message path (~0.5 us): one loop, its state in locals, one struct
-        # pack, two bytearray appends, two index entries; the time range set once per batch
-        topics, limit, pack = self.topics, self.chunk_bytes, MESSAGE.pack
+        # pack into the chunk's buffer, one copy, two index entries; the time range set once
+        # per batch
+        topics, limit, pack_into = self.topics, self.chunk_bytes, MESSAGE.pack_into
         ch = self._chunk
-        data_, singles, t0, t1 = ch.data, ch.singles, ch.t0, ch.t1
+        buf, singles, t0, t1, size = ch.buf, ch.singles, ch.t0, ch.t1, ch.size
+        room = len(buf)
         try:
             for topic, when, data in messages:
                 t = topics.get(topic) or self._topic(topic)  # the latter raises
                 t_ns = int(when)
-                size = len(data_)
-                if size and size + MESSAGE_HEADER + len(data) > limit:
-                    ch.t0, ch.t1 = t0, t1
-                    self._close_chunk()
-                    ch = self._chunk
-                    data_, singles, t0, t1, size = ch.data, ch.singles, ch.t0, ch.t1, 0
+                end = size + MESSAGE_HEADER + len(data)
+                if end > room:
+                    ch.size, ch.t0, ch.t1 = size, t0, t1
+                    if size and end > limit:
+                        self._close_chunk()
+                        ch = self._chunk
+                    buf = ch.reserve(MESSAGE_HEADER + len(data))
+                    singles, t0, t1, size, room = ch.singles, ch.t0, ch.t1, ch.size, len(buf)
+                    end = size + MESSAGE_HEADER + len(data)
                 single = singles.get(t.channel)
                 if single is None:
                     single = singles[t.channel] = array("Q")
                 single.append(t_ns)
                 single.append(size)
-                data_ += pack(0x05, 22 + len(data), t.channel, 0, t_ns, t_ns)
-                data_ += data
+                pack_into(buf, size, 0x05, 22 + len(data), t.channel, 0, t_ns, t_ns)
+                buf[size + MESSAGE_HEADER:end] = data
+                size = end
                 if t_ns < t0:  # noqa: PLR1730 - not min()/max(): two calls per message
                     t0 = t_ns
                 if t_ns > t1:  # noqa: PLR1730
                     t1 = t_ns
                 t.count += 1
-        finally:  # what was appended before an error is in the chunk's range
-            ch.t0, ch.t1 = t0, t1
+        finally:  # what was appended before an error is in the chunk
+            ch.size, ch.t0, ch.t1 = size, t0, t1
 
     def rows_template(self, topics: Sequence[str],
                       templates: Sequence[np.ndarray]) -> RowTemplate:
@@ -290,7 +308,7 @@ class McapBagWriter:
             e = entries.copy()
             e[:, 1] += np.uint64(ch.size)
             ch.index.setdefault(c, []).append(e)
-        ch.data += data
+        ch.put(data)
         ch.t0, ch.t1 = min(ch.t0, t0), max(ch.t1, t1)
 
     def _close_chunk(self) -> None:
@@ -301,7 +319,14 @@ class McapBagWriter:
         for c in list(ch.singles):
             ch.move_singles(c)
         self._pending.append(ch)
-        self._chunk = Chunk()
+        self._chunk = Chunk(self._buffer())
+
+    def _buffer(self) -> bytearray:
+        """A buffer for a new chunk: a written chunk's, else a new one (under ``_lock``)."""
+        if self._spare:
+            return self._spare.pop()
+        return bytearray(self.chunk_bytes if self.defer_flush else
+                         min(FIRST_CHUNK_BYTES, self.chunk_bytes))
 
     def _flush_if_due(self) -> None:
         if self._pending and not self.defer_flush:
@@ -343,6 +368,8 @@ class McapBagWriter:
         ``_flock``)."""
         self._chunk_indexes.append(ch.write(self._f, self._zstd))
         self._t0, self._t1 = min(self._t0, ch.t0), max(self._t1, ch.t1)
+        if len(self._spare) < SPARE_BUFFERS:  # list.append: atomic beside _buffer's pop
+            self._spare.append(ch.buf)
 
     # -- closing -------------------------------------------------------------------------
     def close(self) -> Path:
@@ -396,4 +423,4 @@ class McapBagWriter:
             shutil.rmtree(self.staging, ignore_errors=True)
 
 
-__all__ = ["CHUNK_BYTES", "CHUNK_MAX_AGE_S", "McapBagWriter"]
+__all__ = ["CHUNK_BYTES", "CHUNK_MAX_AGE_S", "FIRST_CHUNK_BYTES", "SPARE_BUFFERS", "McapBagWriter"]
