@@ -37,7 +37,7 @@ class PauseMeter:
     charge counts as the machine's in :attr:`woke_late_s`. (Asking for the GIL behind a C
     call cost the asker 0.08 of the holder's CPU at the hot loops' 200 us switch interval,
     0.2 at 50 us; in the composed graph's late wake-ups that other threads' CPU covered, the
-    driver's charge was 0.4-0.9 of theirs: docs/performance.md, fifty-eighth session.) The
+    driver's charge was 0.35-0.9 of theirs: docs/performance.md, fifty-eighth session.) The
     meter reads the process's and the thread's CPU clocks before and after each wait
     (~0.6 us a read here) and the process's at each :meth:`take_paused_s`.
     """
