@@ -121,7 +121,8 @@ class PlantSimulatorNode(GraphNode, Hosted):
         # pumps and watches the barrier's deadlines (lockstep), unless the hot path is off
         tick = 1.0 / self.rate if not self.lockstep and not self.hot.on else 0.005
         self._tick_timer = steady_timer(self, tick, self._tick)
-        self.hot.set_tick(self._hot_tick, timed=True)  # the pacer reads the pauses
+        # in real time the pacer reads the pauses; lockstep has no deadlines to miss
+        self.hot.set_tick(self._hot_tick, timed=not self.lockstep)
         self.housekeeping(opts.status_period_s, self.io.report)
         self.get_logger().info(
             f"{self.schedule} at {self.rate:g} Hz, {cfg.plant.num_stages} stages "
