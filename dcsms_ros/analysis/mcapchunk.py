@@ -96,4 +96,41 @@ class Chunk:
                       + U64.pack(len(raw)))
 
 
-__all__ = ["Chunk"]
+class ChunkBuffers:
+    """The buffers of one writer's chunks: a written chunk's buffer is kept for a later chunk
+    (up to :data:`SPARE`), so a writer that runs long allocates and touches no new memory.
+
+    Parameters
+    ----------
+    size : int
+        A full chunk, bytes.
+    prefill : bool
+        Make :data:`SPARE` full-size buffers now, their pages touched (a writer on a real-time
+        thread: its writes then fault no page, :class:`Chunk`); else a new buffer starts at
+        :data:`FIRST_BYTES` and doubles as needed, so a short bag touches no more memory than
+        it holds.
+    """
+
+    #: Written chunks' buffers kept for later chunks.
+    SPARE = 2
+    #: First size of a new buffer without ``prefill``, bytes.
+    FIRST_BYTES = 64 << 10
+
+    def __init__(self, size: int, prefill: bool) -> None:
+        self._first = size if prefill else min(self.FIRST_BYTES, size)
+        self._spare = [bytearray(size) for _ in range(self.SPARE)] if prefill else []
+
+    def take(self) -> bytearray:
+        """A buffer for a new chunk: a written chunk's, else a new one. From one thread at a
+        time (the writer's lock)."""
+        return self._spare.pop() if self._spare else bytearray(self._first)
+
+    def give(self, buf: bytearray) -> None:
+        """``buf``'s chunk is written: keep it for a later chunk, if fewer than
+        :data:`SPARE` are kept (a list's append: safe beside :meth:`take` in another
+        thread)."""
+        if len(self._spare) < self.SPARE:
+            self._spare.append(buf)
+
+
+__all__ = ["Chunk", "ChunkBuffers"]

@@ -197,6 +197,16 @@ def message_records(t_ns: np.ndarray, channels: np.ndarray, payload: np.ndarray,
     return out, starts
 
 
+def write_metadata(f: BinaryIO, text: str) -> bytes:
+    """Write rosbag2's ``metadata`` record holding ``text`` (its serialized metadata YAML) to
+    ``f``; returns the record's ``metadata_index`` record for the summary."""
+    start = f.tell()
+    f.write(record("metadata", string_field("rosbag2") + map_field(
+        [(string_field("serialized_metadata"), string_field(text.strip()))])))
+    return record("metadata_index", U64.pack(start) + U64.pack(f.tell() - start)
+                  + string_field("rosbag2"))
+
+
 def write_summary(f: BinaryIO, sections: Sequence[tuple[str, Sequence[bytes]]]) -> None:
     """End the data section of file ``f`` and write the summary: each section's records
     (``(opcode name, records)``, in file order), a summary offset per non-empty section and
@@ -218,4 +228,5 @@ def write_summary(f: BinaryIO, sections: Sequence[tuple[str, Sequence[bytes]]]) 
 
 __all__ = ["MAGIC", "MESSAGE", "MESSAGE_DTYPE", "MESSAGE_HEADER", "OPCODES", "U16", "U32", "U64",
            "RowTemplate", "Topic", "channel_index", "copy_ranges", "map_field", "message_records",
-           "record", "rosbag2_metadata", "statistics_record", "string_field", "write_summary"]
+           "record", "rosbag2_metadata", "statistics_record", "string_field", "write_metadata",
+           "write_summary"]

@@ -31,13 +31,12 @@ import yaml
 
 from dcsms_ros import __version__
 from dcsms_ros.analysis import staging
-from dcsms_ros.analysis.mcapchunk import Chunk
+from dcsms_ros.analysis.mcapchunk import Chunk, ChunkBuffers
 from dcsms_ros.analysis.mcaprecords import (
     MAGIC,
     MESSAGE,
     MESSAGE_HEADER,
     U16,
-    U64,
     RowTemplate,
     Topic,
     channel_index,
@@ -46,6 +45,7 @@ from dcsms_ros.analysis.mcaprecords import (
     rosbag2_metadata,
     statistics_record,
     string_field,
+    write_metadata,
     write_summary,
 )
 from dcsms_ros.cdr import typestore
@@ -59,12 +59,6 @@ ZSTD_LEVEL = 1
 #: chunk: a recorder killed before it closed its bag lost its last ~2 s (:mod:`.bagrecover`
 #: reads the rest back), not its last 4 MB (a slow topic's whole recording).
 CHUNK_MAX_AGE_S = 2.0
-#: First size (bytes) of a chunk's buffer in a writer that does not defer its flush (it
-#: doubles as needed): a short bag touches no more memory than it holds.
-FIRST_CHUNK_BYTES = 64 << 10
-#: Written chunks' buffers a writer keeps for its next chunks (with ``defer_flush`` it makes
-#: them at once, besides the open chunk's).
-SPARE_BUFFERS = 2
 #: libyaml's safe dumper where PyYAML has it (the same text; a run's metadata 24 -> 6 ms).
 _YAML: dict[str, Any] = {"Dumper": getattr(yaml, "CSafeDumper", yaml.SafeDumper),
                          "sort_keys": True}
@@ -87,8 +81,7 @@ class McapBagWriter:
         thread, where closing a 4 MB chunk took 9-12 ms (a gap of 20+ samples at 2 kHz, every
         1.75 s, measured when the composed recorder wrote on its driver thread); the node's
         executor calls :meth:`flush` (:data:`CHUNK_MAX_AGE_S`). Such a writer also makes its
-        chunk buffers at once, full size (:data:`SPARE_BUFFERS` + 1), so no write on the hot
-        thread touches a new page (:class:`.mcapchunk.Chunk`).
+        chunk buffers at once (:class:`.mcapchunk.ChunkBuffers`): its writes fault no page.
 
     Attributes
     ----------
@@ -110,11 +103,8 @@ class McapBagWriter:
             self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
         self.topics: dict[str, Topic] = {}
         self._schemas: dict[str, tuple[int, bytes]] = {}
-        #: buffers of written chunks, for the next ones (:meth:`_write_chunk`)
-        self._spare: list[bytearray] = []
-        if defer_flush:
-            self._spare = [bytearray(chunk_bytes) for _ in range(SPARE_BUFFERS)]
-        self._chunk = Chunk(self._buffer())
+        self._buffers = ChunkBuffers(chunk_bytes, prefill=defer_flush)
+        self._chunk = Chunk(self._buffers.take())
         #: what waits to go to the file, in file order: records (schemas, channels) and chunks
         self._pending: list[bytes | Chunk] = []
         self._chunk_indexes: list[bytes] = []
@@ -194,9 +184,8 @@ class McapBagWriter:
         self._flush_if_due()
 
     def _append(self, messages: Iterable[tuple[str, int, bytes]]) -> None:
-        # a recorder's per-message path (~0.5 us): one loop, its state in locals, one struct
-        # pack into the chunk's buffer, one copy, two index entries; the time range set once
-        # per batch
+        # a recorder's per-message path (~0.5 us): one loop, its state in locals, a struct packed
+        # into the chunk's buffer, one copy, two index entries; the time range once per batch
         topics, limit, pack_into = self.topics, self.chunk_bytes, MESSAGE.pack_into
         ch = self._chunk
         buf, singles, t0, t1, size = ch.buf, ch.singles, ch.t0, ch.t1, ch.size
@@ -251,23 +240,20 @@ class McapBagWriter:
 
     def write_encoded(self, t_ns: np.ndarray, tpl: RowTemplate, buf: np.ndarray) -> None:
         """K samples already encoded by ``tpl`` (``buf`` (K, width) uint8, C-contiguous)."""
-        with self._lock:
-            self._write_encoded(t_ns, tpl, buf)
-        self._flush_if_due()
-
-    def _write_encoded(self, t_ns: np.ndarray, tpl: RowTemplate, buf: np.ndarray) -> None:
         t = np.ascontiguousarray(t_ns, dtype="<u8")
         k, w = buf.shape
         per_chunk = max(1, self.chunk_bytes // w)
-        for tp in tpl.topics:
-            tp.count += k
-        for a in range(0, k, per_chunk):
-            b = min(a + per_chunk, k)
-            pos = np.arange(b - a, dtype=np.uint64) * np.uint64(w)
-            index = {tp.channel: np.stack([t[a:b], pos + np.uint64(o)], axis=1)
-                     for tp, o in zip(tpl.topics, tpl.offsets, strict=True)}
-            rows: Any = buf[a:b]  # C-contiguous rows: no copy
-            self._add(memoryview(rows).cast("B"), index, int(t[a]), int(t[b - 1]))
+        with self._lock:
+            for tp in tpl.topics:
+                tp.count += k
+            for a in range(0, k, per_chunk):
+                b = min(a + per_chunk, k)
+                pos = np.arange(b - a, dtype=np.uint64) * np.uint64(w)
+                index = {tp.channel: np.stack([t[a:b], pos + np.uint64(o)], axis=1)
+                         for tp, o in zip(tpl.topics, tpl.offsets, strict=True)}
+                rows: Any = buf[a:b]  # C-contiguous rows: no copy
+                self._add(memoryview(rows).cast("B"), index, int(t[a]), int(t[b - 1]))
+        self._flush_if_due()
 
     def write_records(self, t_ns: np.ndarray, channels: np.ndarray, records: np.ndarray,
                       starts: np.ndarray) -> None:
@@ -319,14 +305,7 @@ class McapBagWriter:
         for c in list(ch.singles):
             ch.move_singles(c)
         self._pending.append(ch)
-        self._chunk = Chunk(self._buffer())
-
-    def _buffer(self) -> bytearray:
-        """A buffer for a new chunk: a written chunk's, else a new one (under ``_lock``)."""
-        if self._spare:
-            return self._spare.pop()
-        return bytearray(self.chunk_bytes if self.defer_flush else
-                         min(FIRST_CHUNK_BYTES, self.chunk_bytes))
+        self._chunk = Chunk(self._buffers.take())
 
     def _flush_if_due(self) -> None:
         if self._pending and not self.defer_flush:
@@ -368,8 +347,7 @@ class McapBagWriter:
         ``_flock``)."""
         self._chunk_indexes.append(ch.write(self._f, self._zstd))
         self._t0, self._t1 = min(self._t0, ch.t0), max(self._t1, ch.t1)
-        if len(self._spare) < SPARE_BUFFERS:  # list.append: atomic beside _buffer's pop
-            self._spare.append(ch.buf)
+        self._buffers.give(ch.buf)
 
     # -- closing -------------------------------------------------------------------------
     def close(self) -> Path:
@@ -390,17 +368,12 @@ class McapBagWriter:
             meta = rosbag2_metadata(self.file.name, topics, self._t0, self._t1, self.custom_data)
             text = yaml.dump(meta["rosbag2_bagfile_information"], **_YAML)
             f = self._f
-            meta_start = f.tell()
-            f.write(record("metadata", string_field("rosbag2") + map_field(
-                [(string_field("serialized_metadata"), string_field(text.strip()))])))
-            meta_end = f.tell()
+            meta_index = write_metadata(f, text)
             write_summary(f, [
                 ("schema", [r for _, r in self._schemas.values()]),
                 ("channel", [self._channel_record(t) for t in self.topics.values()]),
                 ("chunk_index", self._chunk_indexes),
-                ("metadata_index", [record("metadata_index", U64.pack(meta_start)
-                                           + U64.pack(meta_end - meta_start)
-                                           + string_field("rosbag2"))]),
+                ("metadata_index", [meta_index]),
                 ("statistics", [statistics_record(topics, len(self._schemas),
                                                   len(self._chunk_indexes), self._t0,
                                                   self._t1)])])
@@ -423,4 +396,4 @@ class McapBagWriter:
             shutil.rmtree(self.staging, ignore_errors=True)
 
 
-__all__ = ["CHUNK_BYTES", "CHUNK_MAX_AGE_S", "FIRST_CHUNK_BYTES", "SPARE_BUFFERS", "McapBagWriter"]
+__all__ = ["CHUNK_BYTES", "CHUNK_MAX_AGE_S", "McapBagWriter"]
